@@ -1,0 +1,167 @@
+"""The robot as a PyBullet body: set a configuration, read link poses, query collisions.
+
+The body is loaded from the same prepared URDF as the pinocchio model (planar base joints
+included), with a fixed root: moving the base is moving three joints. Self-collision is on, minus
+the allowed pairs: every link with its nearest ancestor that has collision geometry (parent/child
+through geometry-less frames), plus the pairs listed in robot.toml. Collision queries run
+PyBullet's narrow phase once and filter the robot's contacts by penetration depth.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+import pybullet as p
+from numpy.typing import ArrayLike, NDArray
+
+from rlgp_exec.errors import ModelError
+from rlgp_exec.robot.model import RobotModel
+from rlgp_exec.robot.quiet import quiet_stdout
+
+__all__ = ["Contact", "PyBulletRobot", "pose_to_matrix"]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+def pose_to_matrix(position: Sequence[float], quaternion_xyzw: Sequence[float]) -> FloatArray:
+    """T (4, 4) from a PyBullet position and (x, y, z, w) quaternion."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(p.getMatrixFromQuaternion(quaternion_xyzw)).reshape(3, 3)
+    T[:3, 3] = position
+    return T
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A penetration between a robot link and another body (or another robot link)."""
+
+    link: str
+    other_body: int
+    other_link: str  # link name for the robot itself, PyBullet link index as text otherwise
+    distance: float  # [m], negative = penetration depth
+    position: tuple[float, float, float]  # on the robot link, world frame [m]
+
+    @property
+    def is_self(self) -> bool:
+        return self.other_link != "" and not self.other_link.lstrip("-").isdigit()
+
+
+class PyBulletRobot:
+    """A :class:`RobotModel` instantiated in a PyBullet client."""
+
+    def __init__(self, model: RobotModel, client: int) -> None:
+        self.model = model
+        self.client = client
+        flags = p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+        try:
+            with quiet_stdout():
+                self.id = p.loadURDF(
+                    str(model.urdf.pybullet_path), useFixedBase=True, flags=flags, physicsClientId=client
+                )
+        except p.error as e:
+            raise ModelError(f"{model.name}: PyBullet could not load {model.urdf.pybullet_path}: {e}") from e
+        self.link_index: dict[str, int] = {"world": -1}
+        self.joint_index: dict[str, int] = {}
+        self.parent_link: dict[str, str] = {}
+        for i in range(p.getNumJoints(self.id, physicsClientId=client)):
+            info = p.getJointInfo(self.id, i, physicsClientId=client)
+            jname, lname = info[1].decode(), info[12].decode()
+            self.joint_index[jname] = i
+            self.link_index[lname] = i
+            parent = info[16]
+            self.parent_link[lname] = "world" if parent < 0 else p.getJointInfo(self.id, parent, physicsClientId=client)[12].decode()
+        self.link_name = {i: n for n, i in self.link_index.items()}
+        pm = model.pin_model
+        self._full_joints = [(self.joint_index[pm.names[j]], pm.joints[j].idx_q) for j in range(1, pm.njoints)]
+        self.allowed_pairs = self._allowed_pairs()
+        for a, b in self.allowed_pairs:
+            p.setCollisionFilterPair(self.id, self.id, self.link_index[a], self.link_index[b], 0, physicsClientId=client)
+        self._ignored_bodies: set[int] = set()
+        self.set_q(model.home())
+
+    # ------------------------------------------------------------------ set-up
+    def _allowed_pairs(self) -> set[tuple[str, str]]:
+        with_geom = self.model.urdf.links_with_collision
+        pairs: set[tuple[str, str]] = set()
+        for link in with_geom:
+            anc = self.parent_link.get(link)
+            while anc is not None and anc != "world" and anc not in with_geom:
+                anc = self.parent_link.get(anc)
+            if anc is not None and anc != "world":
+                pairs.add(tuple(sorted((link, anc))))  # type: ignore[arg-type]
+        for a, b in self.model.config.allowed_collisions:
+            for n in (a, b):
+                if n not in self.link_index:
+                    raise ModelError(f"{self.model.name}: robot.toml allowed pair names unknown link {n!r}")
+            pairs.add(tuple(sorted((a, b))))  # type: ignore[arg-type]
+        return pairs
+
+    def ignore_floor(self, floor_body: int) -> None:
+        """Never report contacts between ``floor_body`` and the links listed as floor_contact."""
+        for name in self.model.config.floor_contact:
+            if name not in self.link_index:
+                raise ModelError(f"{self.model.name}: floor_contact names unknown link {name!r}")
+            p.setCollisionFilterPair(self.id, floor_body, self.link_index[name], -1, 0, physicsClientId=self.client)
+
+    def ignore_body(self, body: int, ignore: bool = True) -> None:
+        """Exclude (or re-include) a body from :meth:`contacts` (e.g. an object held in the hand)."""
+        if ignore:
+            self._ignored_bodies.add(body)
+        else:
+            self._ignored_bodies.discard(body)
+
+    # ------------------------------------------------------------------ state
+    def set_q(self, q: ArrayLike) -> None:
+        """Teleport the robot to q (nq,) (mimic and locked joints included)."""
+        qf = self.model.full_q(q)
+        for ji, iq in self._full_joints:
+            p.resetJointState(self.id, ji, float(qf[iq]), 0.0, physicsClientId=self.client)
+
+    def get_q(self) -> FloatArray:
+        """The current q (nq,) read back from the joints."""
+        q = np.empty(self.model.nq)
+        for i, n in enumerate(self.model.joint_names):
+            q[i] = p.getJointState(self.id, self.joint_index[n], physicsClientId=self.client)[0]
+        return self.model.limits.wrap(q)
+
+    def link_pose(self, link: str) -> FloatArray:
+        """T_world_link (4, 4): the URDF link frame."""
+        i = self.link_index.get(link)
+        if i is None:
+            raise ModelError(f"{self.model.name}: unknown link {link!r}")
+        if i < 0:
+            return np.eye(4)
+        st = p.getLinkState(self.id, i, computeForwardKinematics=True, physicsClientId=self.client)
+        return pose_to_matrix(st[4], st[5])
+
+    # ------------------------------------------------------------------ collisions
+    def contacts(self, tolerance: float = 1e-3, refresh: bool = True) -> list[Contact]:
+        """Penetrations deeper than ``tolerance`` [m] between the robot and anything (itself included)."""
+        if refresh:
+            p.performCollisionDetection(physicsClientId=self.client)
+        out: list[Contact] = []
+        for c in p.getContactPoints(bodyA=self.id, physicsClientId=self.client):
+            body_b, link_a, link_b, dist = c[2], c[3], c[4], c[8]
+            if dist >= -tolerance or body_b in self._ignored_bodies:
+                continue
+            other = self.link_name.get(link_b, str(link_b)) if body_b == self.id else str(link_b)
+            out.append(Contact(self.link_name.get(link_a, str(link_a)), body_b, other, float(dist), tuple(c[5])))
+        return out
+
+    def in_collision(self, q: ArrayLike | None = None, tolerance: float = 1e-3) -> bool:
+        """True when the robot (at q, if given) penetrates the world or itself by more than ``tolerance``."""
+        if q is not None:
+            self.set_q(q)
+        return bool(self.contacts(tolerance))
+
+    def clearance(self, bodies: Iterable[int], max_distance: float = 0.5) -> float:
+        """Smallest distance [m] between the robot and ``bodies`` (capped at ``max_distance``)."""
+        best = max_distance
+        for b in bodies:
+            for c in p.getClosestPoints(self.id, b, max_distance, physicsClientId=self.client):
+                best = min(best, float(c[8]))
+        return best

@@ -1,0 +1,233 @@
+"""RobotModel: pinocchio FK == CasADi FK == PyBullet link poses, Jacobians, limits, collisions."""
+
+from __future__ import annotations
+
+import csv
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from rlgp_exec.errors import ModelError
+from rlgp_exec.robot import load_robot
+from rlgp_exec.robot.pybullet_body import PyBulletRobot
+from robots import robot_dir
+
+ROBOTS = ["hsr", "pr2"]
+N_CONFIGS = 200
+
+
+def rot_err(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle [rad] of Ra^T Rb."""
+    c = np.clip((np.trace(Ra.T @ Rb) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.arccos(c)) if c < 1.0 - 1e-15 else float(np.linalg.norm(Ra - Rb))
+
+
+@pytest.fixture(scope="module", params=ROBOTS)
+def robot(request):
+    return load_robot(request.param)
+
+
+@pytest.fixture(scope="module")
+def body(robot):
+    client = p.connect(p.DIRECT)
+    yield PyBulletRobot(robot, client)
+    p.disconnect(client)
+
+
+def test_pinocchio_equals_casadi_fk(robot):
+    frames = [m.tool_frame for m in robot.config.manipulators] + [robot.config.frames["camera"]]
+    frames += sorted(robot.urdf.links_with_collision)
+    fk = robot.casadi_fk(frames)
+    rng = np.random.default_rng(1)
+    for _ in range(N_CONFIGS):
+        q = robot.random_q(rng)
+        for T_pin, T_ca in zip(robot.fk_many(q, frames), fk(q), strict=True):
+            T_ca = np.asarray(T_ca)
+            assert np.abs(T_pin[:3, 3] - T_ca[:3, 3]).max() < 1e-6
+            assert rot_err(T_pin[:3, :3], T_ca[:3, :3]) < 1e-6
+
+
+def test_pinocchio_equals_pybullet_link_poses(robot, body):
+    links = [name for name in body.link_index if name != "world"]
+    rng = np.random.default_rng(2)
+    for _ in range(N_CONFIGS):
+        q = robot.random_q(rng)
+        body.set_q(q)
+        for link, T_pin in zip(links, robot.fk_many(q, links), strict=True):
+            T_pb = body.link_pose(link)
+            assert np.abs(T_pin[:3, 3] - T_pb[:3, 3]).max() < 1e-6, link
+            assert rot_err(T_pin[:3, :3], T_pb[:3, :3]) < 1e-6, link
+
+
+def test_get_q_round_trips_through_pybullet(robot, body):
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = robot.limits.wrap(robot.random_q(rng))
+        body.set_q(q)
+        assert np.allclose(robot.limits.difference(body.get_q(), q), 0.0, atol=1e-9)
+
+
+def _log_rot(R: np.ndarray) -> np.ndarray:
+    import pinocchio as pin
+
+    return np.asarray(pin.log3(R))
+
+
+def test_frame_jacobians_match_finite_differences(robot):
+    rng = np.random.default_rng(4)
+    frames = [m.tool_frame for m in robot.config.manipulators] + [robot.config.frames["camera"]]
+    eps = 1e-6
+    for _ in range(20):
+        q = robot.random_q(rng)
+        for frame in frames:
+            J = robot.jacobian(q, frame)
+            T0 = robot.fk(q, frame)
+            J_fd = np.zeros_like(J)
+            for i in range(robot.nq):
+                dq = np.zeros(robot.nq)
+                dq[i] = eps
+                Tp, Tm = robot.fk(q + dq, frame), robot.fk(q - dq, frame)
+                J_fd[:3, i] = (Tp[:3, 3] - Tm[:3, 3]) / (2 * eps)
+                # world-aligned angular velocity: log(R(q+dq) R(q)^T) / dq
+                J_fd[3:, i] = (_log_rot(Tp[:3, :3] @ T0[:3, :3].T) - _log_rot(Tm[:3, :3] @ T0[:3, :3].T)) / (2 * eps)
+            assert np.abs(J - J_fd).max() < 1e-5, frame
+
+
+def test_home_pose_is_collision_free_and_within_limits(robot, body):
+    q = robot.home()
+    assert robot.limits.within(q)
+    body.set_q(q)
+    assert body.contacts() == []
+
+
+def test_collision_query_sees_a_box_through_the_arm(robot, body):
+    q = robot.home()
+    body.set_q(q)
+    tool = robot.fk(q, robot.manipulator().palm_frame)[:3, 3]
+    shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.05, 0.05, 0.05], physicsClientId=body.client)
+    box = p.createMultiBody(0, shape, basePosition=tool.tolist(), physicsClientId=body.client)
+    try:
+        hits = body.contacts()
+        assert any(c.other_body == box for c in hits)
+        body.ignore_body(box)
+        assert not any(c.other_body == box for c in body.contacts())
+    finally:
+        body.ignore_body(box, False)
+        p.removeBody(box, physicsClientId=body.client)
+    assert body.contacts() == []
+
+
+def test_self_collision_is_detected_when_the_arm_folds_into_the_body():
+    robot = load_robot("hsr")
+    client = p.connect(p.DIRECT)
+    try:
+        body = PyBulletRobot(robot, client)
+        q = robot.home(joints={"arm_flex_joint": -2.6, "arm_lift_joint": 0.0, "wrist_flex_joint": 0.0,
+                               "arm_roll_joint": 0.0})
+        body.set_q(q)
+        tool_z = robot.fk(q, "hand_tool_frame")[2, 3]
+        assert tool_z < 0.31  # the hand is down inside the base cylinder
+        assert any(c.is_self or c.other_body == body.id for c in body.contacts())
+    finally:
+        p.disconnect(client)
+
+
+def test_limits_carry_continuous_joints_and_base_speeds():
+    hsr, pr2 = load_robot("hsr"), load_robot("pr2")
+    assert hsr.limits.names[:3] == ("base_x", "base_y", "base_yaw")
+    assert list(hsr.limits.velocity[:3]) == [0.2, 0.2, 1.0]
+    assert list(np.flatnonzero(hsr.limits.continuous)) == [2]
+    cont = {pr2.limits.names[i] for i in np.flatnonzero(pr2.limits.continuous)}
+    assert cont == {"base_yaw", "r_forearm_roll_joint", "r_wrist_roll_joint", "l_forearm_roll_joint",
+                    "l_wrist_roll_joint"}
+    assert pr2.nq == 3 + 1 + 7 + 7 + 2 + 2
+    assert len(pr2.group("right_arm")) == 7 and len(pr2.group("left_arm")) == 7
+
+
+def test_mimic_joints_follow_their_primary():
+    hsr = load_robot("hsr")
+    q = hsr.home(joints={"arm_lift_joint": 0.6})
+    T_torso = hsr.fk(q, "torso_lift_link")
+    assert T_torso[2, 3] == pytest.approx(0.752 + 0.3, abs=1e-12)
+    client = p.connect(p.DIRECT)
+    try:
+        body = PyBulletRobot(hsr, client)
+        body.set_q(q)
+        assert body.link_pose("torso_lift_link")[2, 3] == pytest.approx(1.052, abs=1e-6)
+    finally:
+        p.disconnect(client)
+
+
+@pytest.mark.parametrize(("lift", "height"), [(0.0, 1.005), (0.69, 1.35)])
+def test_hsr_body_height_with_the_lift(lift, height):
+    hsr = load_robot("hsr")
+    client = p.connect(p.DIRECT)
+    try:
+        body = PyBulletRobot(hsr, client)
+        body.set_q(hsr.home(joints={"arm_lift_joint": lift, "head_tilt_joint": 0.0, "arm_flex_joint": -1.57}))
+        top = max(p.getAABB(body.id, i, physicsClientId=client)[1][2] for i in range(p.getNumJoints(body.id)))
+        assert top == pytest.approx(height, abs=0.02)
+        base_aabb = p.getAABB(body.id, body.link_index["base_link"], physicsClientId=client)
+        assert base_aabb[1][0] - base_aabb[0][0] == pytest.approx(0.43, abs=0.008)  # AABBs carry a margin
+    finally:
+        p.disconnect(client)
+
+
+def _numbers(text: str) -> list[float]:
+    """The leading numbers of a kinematics-table cell ("0.141 0.078 0 (ROS2: 0.0785)" -> [0.141, 0.078, 0])."""
+    head = text.split("(")[0]
+    return [float(x) for x in re.findall(r"-?\d+(?:\.\d+)?", head)]
+
+
+def test_hsr_urdf_matches_the_kinematics_table():
+    folder = robot_dir("hsr")
+    urdf = ET.parse(folder / "hsr.urdf").getroot()
+    joints = {j.get("name"): j for j in urdf.findall("joint")}
+    checked = 0
+    with open(folder / "hsr_kinematics.csv") as f:
+        for row in csv.DictReader(f):
+            name = row["joint"]
+            if name not in joints:
+                continue
+            j = joints[name]
+            assert j.find("parent").get("link") == row["parent"], name
+            if row["origin_xyz"]:
+                xyz = [float(v) for v in j.find("origin").get("xyz").split()]
+                assert np.allclose(xyz, _numbers(row["origin_xyz"])[:3]), name
+            if row["axis"] and j.find("axis") is not None:
+                axis = [float(v) for v in j.find("axis").get("xyz").split()]
+                assert np.allclose(axis, _numbers(row["axis"])), name
+            lim = j.find("limit")
+            if row["lower"] and lim is not None:
+                assert float(lim.get("lower")) == pytest.approx(_numbers(row["lower"])[0]), name
+                assert float(lim.get("upper")) == pytest.approx(_numbers(row["upper"])[0]), name
+                assert float(lim.get("velocity")) == pytest.approx(_numbers(row["vel_limit"])[0]), name
+            checked += 1
+    assert checked >= 12  # lift, torso, 5 arm, 2 head, hand motor, 2 fingers
+
+
+def test_bad_names_and_shapes_raise_model_error_listing_the_options():
+    hsr = load_robot("hsr")
+    with pytest.raises(ModelError, match="valid"):
+        hsr.index("elbow")
+    with pytest.raises(ModelError, match="valid"):
+        hsr.group("legs")
+    with pytest.raises(ModelError, match=r"shape \(11,\)"):
+        hsr.fk(np.zeros(5), "hand_tool_frame")
+    with pytest.raises(ModelError, match="unknown frame"):
+        hsr.fk(hsr.home(), "nose")
+    with pytest.raises(ModelError, match="valid"):
+        load_robot("nao")
+
+
+def test_pr2_urdf_comes_from_the_wheel_with_package_paths_rewritten():
+    pr2 = load_robot("pr2")
+    text = Path(pr2.urdf.pybullet_path).read_text()
+    assert "package://" not in text
+    meshes = re.findall(r'filename="([^"]+)"', text)
+    assert meshes and all(Path(m).is_file() for m in meshes)
+    assert all("cmeel.prefix" in Path(m).parts for m in meshes)  # in the installed wheel, not copied here
