@@ -1,0 +1,3 @@
+from rlgp_exec.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,183 @@
+"""``rlgp-exec``: the command line (the contract of DESIGN.md).
+
+Library code logs; this module is the only place that prints. Every subcommand returns an exit
+code: 0 success, 1 the task failed (e.g. no plan), 2 bad input or a feature that has not landed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from rlgp_exec.errors import RlgpError
+
+__all__ = ["main"]
+
+log = logging.getLogger("rlgp_exec")
+
+# Subcommands of the DESIGN.md contract whose implementation has not landed yet, with the issue
+# that brings it. They parse their arguments and exit 2 with this message: never a fake result.
+PENDING: dict[str, str] = {
+    "plan": "the R-LGP and GNPP planners (issues 4 and 5)",
+    "run": "the executive loop (issue 9)",
+    "sim-robot": "the simulated robot server (issue 7)",
+    "daemon": "the on-robot daemon (issue 9)",
+    "rg": "the reachability graph (issue 3)",
+    "replay": "recordings (issue 9)",
+}
+
+
+def _pending(name: str) -> Callable[[argparse.Namespace], int]:
+    def run(_: argparse.Namespace) -> int:
+        print(f"rlgp-exec {name}: not available in this build: it needs {PENDING[name]}.", file=sys.stderr)
+        return 2
+
+    return run
+
+
+def _write_json(path: str | None, data: dict[str, Any]) -> None:
+    if path:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(data, indent=2, default=float) + "\n")
+
+
+# ---------------------------------------------------------------------------------- show
+def cmd_show(args: argparse.Namespace) -> int:
+    from rlgp_exec.scene import load_scene, randomize
+    from sim.render import render_scene_png
+
+    scene = load_scene(args.scene)
+    if args.seed is not None:
+        scene = randomize(scene, args.seed)
+    out = render_scene_png(scene, args.png, width=args.width, height=args.height, view=args.view)
+    print(f"{scene.name}: wrote {out}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- bench
+def cmd_bench(args: argparse.Namespace) -> int:
+    task = args.task
+    if task == "timing":
+        from rlgp_exec.timing.bench import run_timing_bench
+
+        result = run_timing_bench(seed=args.seed or 0)
+    elif task == "perception":
+        from perception.bench import run_perception_bench
+
+        result = run_perception_bench(seed=args.seed or 0)
+    else:
+        print(
+            f"rlgp-exec bench {task}: planner/reachability/HAL/executive benchmarks are not available in this "
+            "build (issues 3, 4, 5, 7, 9); available: timing, perception",
+            file=sys.stderr,
+        )
+        return 2
+    _write_json(args.json, result)
+    for k, v in result.get("summary", {}).items():
+        print(f"{k:40s} {v}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- perceive
+def cmd_perceive(args: argparse.Namespace) -> int:
+    print("rlgp-exec perceive: not available in this build: it needs the perception layer (issue 8).", file=sys.stderr)
+    return 2
+
+
+# ---------------------------------------------------------------------------------- demo
+def cmd_demo(args: argparse.Namespace) -> int:
+    from rlgp_exec.demo import run_demo
+
+    report = run_demo(Path(args.out))
+    print(report.text())
+    return 0 if report.ok else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rlgp-exec", description="Sense-plan-act executive for mobile manipulators.")
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("plan", help="plan a scene's task")
+    s.add_argument("scene")
+    s.add_argument("--planner", default="rlgp")
+    s.add_argument("--seed", type=int)
+    s.add_argument("--json")
+    s.add_argument("--plot")
+    s.set_defaults(func=_pending("plan"))
+
+    s = sub.add_parser("run", help="plan and execute a scene's task")
+    s.add_argument("scene")
+    s.add_argument("--backend", choices=["sim", "zenoh", "can"], default="sim")
+    s.add_argument("--perceive", action="store_true")
+    s.add_argument("--record")
+    s.set_defaults(func=_pending("run"))
+
+    s = sub.add_parser("bench", help="benchmarks: timing, perception (planners, reachability, hal, executive later)")
+    s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
+    s.add_argument("--planners")
+    s.add_argument("--seeds", type=int, default=20)
+    s.add_argument("--seed", type=int)
+    s.add_argument("--workers", type=int, default=1)
+    s.add_argument("--json")
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("perceive", help="detect AprilTags in rendered or given images")
+    s.add_argument("scene")
+    s.add_argument("--json")
+    s.set_defaults(func=cmd_perceive)
+
+    s = sub.add_parser("sim-robot", help="the simulated robot server")
+    s.add_argument("--robot", choices=["hsr", "pr2"], required=True)
+    s.add_argument("--transport", choices=["zenoh", "can"], required=True)
+    s.add_argument("--scene")
+    s.set_defaults(func=_pending("sim-robot"))
+
+    s = sub.add_parser("daemon", help="the on-robot execution daemon")
+    s.add_argument("--robot", choices=["hsr", "pr2"], default="hsr")
+    s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim")
+    s.set_defaults(func=_pending("daemon"))
+
+    s = sub.add_parser("rg", help="build/draw a scene's reachability graph")
+    s.add_argument("scene")
+    s.add_argument("--png")
+    s.set_defaults(func=_pending("rg"))
+
+    s = sub.add_parser("replay", help="replay an MCAP recording into PyBullet")
+    s.add_argument("file")
+    s.set_defaults(func=_pending("replay"))
+
+    s = sub.add_parser("show", help="render a scene to a PNG (PyBullet camera)")
+    s.add_argument("scene")
+    s.add_argument("--png", required=True)
+    s.add_argument("--seed", type=int, help="randomise object poses with this seed")
+    s.add_argument("--view", choices=["overview", "top", "robot"], default="overview")
+    s.add_argument("--width", type=int, default=960)
+    s.add_argument("--height", type=int, default=720)
+    s.set_defaults(func=cmd_show)
+
+    s = sub.add_parser("demo", help="the headless dry run behind `make demo`")
+    s.add_argument("--out", default="out")
+    s.set_defaults(func=cmd_demo)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args))
+    except RlgpError as e:
+        print(f"rlgp-exec {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""Geometric checks of a scene: supports, interpenetration, randomisation ranges."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable
+
+import numpy as np
+
+from rlgp_exec.errors import SceneError
+from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_box, support_surfaces
+from rlgp_exec.scene.types import Scene, SceneObject
+
+__all__ = ["SUPPORT_TOLERANCE", "find_support", "footprint_radius", "validate_geometry"]
+
+SUPPORT_TOLERANCE = 0.005  # [m] between an object's bottom and its support surface
+
+Fail = Callable[[str, str], SceneError]
+
+
+def footprint_radius(obj: SceneObject) -> float:
+    """Half-diagonal of the object's footprint [m]: its reach in the plane at any yaw."""
+    return float(np.hypot(obj.size[0], obj.size[1]) / 2)
+
+
+def find_support(scene: Scene, fail: Fail) -> Scene:
+    """Fill each object's ``support``: the highest surface under its centre that its bottom touches."""
+    objs = []
+    for o in scene.objects:
+        bottom = o.pose[2] - o.size[2] / 2
+        xy = np.asarray(o.pose[:2])
+        under = [s for s in support_surfaces(scene, exclude=o.name) if s.contains(xy) and s.z <= bottom + 0.05]
+        touching = [s for s in under if abs(s.z - bottom) <= SUPPORT_TOLERANCE]
+        where = f"[[object]] '{o.name}'.pose"
+        if touching:
+            objs.append(replace(o, support=max(touching, key=lambda s: s.z).name))
+            continue
+        if bottom <= SUPPORT_TOLERANCE and bottom >= -SUPPORT_TOLERANCE:
+            raise fail(where, "rests on the floor; objects must rest on a fixture, a drawer or another object")
+        below = max((s for s in under if s.z <= bottom + SUPPORT_TOLERANCE), key=lambda s: s.z, default=None)
+        if below is None:
+            raise fail(where, f"nothing under the object at {list(o.pose[:2])}: it floats (bottom at {bottom:.3f} m)")
+        raise fail(where, f"floating: bottom at z = {bottom:.3f} m, {below.name!r} top at z = {below.z:.3f} m "
+                          f"(tolerance {SUPPORT_TOLERANCE * 1000:.0f} mm)")
+    return replace(scene, objects=tuple(objs))
+
+
+def _static_boxes(scene: Scene) -> list[Box]:
+    from rlgp_exec.scene.geometry import cabinet_geometry
+
+    boxes: list[Box] = []
+    for f in scene.fixtures:
+        boxes += fixture_boxes(f)
+        if f.kind == "drawer_cabinet":
+            g = cabinet_geometry(f)
+            boxes += [Box(b.name, b.size, g.T_world_drawer_closed @ b.T, b.color) for b in g.drawer]
+    return boxes
+
+
+def validate_geometry(scene: Scene, fail: Fail) -> None:
+    """Objects on their supports (centre and footprint), no interpenetration, sane random ranges."""
+    statics = _static_boxes(scene)
+    surfaces = {s.name: s for s in support_surfaces(scene)}
+    obj_boxes = {o.name: object_box(o) for o in scene.objects}
+    for o in scene.objects:
+        where = f"[[object]] '{o.name}'"
+        b = obj_boxes[o.name]
+        for s in statics:
+            if boxes_overlap(b, s):
+                raise fail(f"{where}.pose", f"interpenetrates fixture part {s.name!r}")
+        for other in scene.objects:
+            if other.name < o.name and boxes_overlap(b, obj_boxes[other.name]):
+                raise fail(f"{where}.pose", f"interpenetrates object {other.name!r}")
+        if o.random is not None:
+            sup = o.support
+            if sup not in {f.name for f in scene.fixtures}:
+                raise fail(f"{where}.random", f"objects with random poses must rest on a fixture, not on {sup!r}")
+            resting = [x.name for x in scene.objects if x.support == o.name]
+            if resting:
+                raise fail(f"{where}.random", f"cannot randomise: {resting} rest on it")
+            surf = surfaces[sup]
+            r = footprint_radius(o)
+            for axis, rng in ((0, o.random.x), (1, o.random.y)):
+                if rng is None:
+                    continue
+                half = surf.size[axis] / 2 - r
+                if rng[0] < -half - 1e-9 or rng[1] > half + 1e-9:
+                    name = "xy"[axis]
+                    raise fail(f"{where}.random.{name}", f"[{rng[0]}, {rng[1]}] puts the object off {sup!r} "
+                                                         f"(its centre must stay within ±{half:.3f} m)")

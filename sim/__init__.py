@@ -1,0 +1,1 @@
+"""Simulation: PyBullet worlds built from scene files, rendered cameras, the simulated robot server."""
