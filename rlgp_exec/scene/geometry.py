@@ -131,7 +131,7 @@ def cabinet_geometry(fx: Fixture) -> CabinetGeometry:
     dcol = COLORS["wood"]
     eye = np.eye(4)
     drawer = [
-        Box(f"{fx.name}.drawer.bottom", (dd, dw, t), _local(eye, (0, 0, -hd / 2 + t / 2)), dcol),
+        Box(f"{fx.name}.drawer.bottom", (dd - 2 * t, dw - 2 * t, t), _local(eye, (0, 0, -hd / 2 + t / 2)), dcol),
         Box(f"{fx.name}.drawer.front", (t, dw, hd), _local(eye, (dd / 2 - t / 2, 0, 0)), dcol),
         Box(f"{fx.name}.drawer.back", (t, dw, hd), _local(eye, (-dd / 2 + t / 2, 0, 0)), dcol),
         Box(f"{fx.name}.drawer.side_l", (dd - 2 * t, t, hd), _local(eye, (0, dw / 2 - t / 2, 0)), dcol),

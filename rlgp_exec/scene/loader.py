@@ -81,7 +81,7 @@ class _Reader:
         if not isinstance(value, str) or not value.strip():
             raise self.fail(where, f"expected a non-empty string, got {value!r}")
         if choices is not None and value not in choices:
-            raise self.fail(where, f"{value!r} is not one of {list(choices)}")
+            raise self.fail(where, f"unknown value {value!r}; valid: {list(choices)}")
         if choices is None and (any(c.isspace() or c in "()" for c in value)):
             raise self.fail(where, f"names may not contain spaces or parentheses: {value!r}")
         return value

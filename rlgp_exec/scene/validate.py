@@ -29,12 +29,18 @@ def find_support(scene: Scene, fail: Fail) -> Scene:
     for o in scene.objects:
         bottom = o.pose[2] - o.size[2] / 2
         xy = np.asarray(o.pose[:2])
-        under = [s for s in support_surfaces(scene, exclude=o.name) if s.contains(xy) and s.z <= bottom + 0.05]
+        top = o.pose[2] + o.size[2] / 2
+        surfaces = [s for s in support_surfaces(scene, exclude=o.name) if s.contains(xy)]
+        under = [s for s in surfaces if s.z <= bottom + 0.05]
         touching = [s for s in under if abs(s.z - bottom) <= SUPPORT_TOLERANCE]
         where = f"[[object]] '{o.name}'.pose"
         if touching:
             objs.append(replace(o, support=max(touching, key=lambda s: s.z).name))
             continue
+        sunk = [s for s in surfaces if bottom < s.z < top]
+        if sunk:
+            s0 = max(sunk, key=lambda s: s.z)
+            raise fail(where, f"sunk into {s0.name!r}: bottom at z = {bottom:.3f} m, its top at z = {s0.z:.3f} m")
         if bottom <= SUPPORT_TOLERANCE and bottom >= -SUPPORT_TOLERANCE:
             raise fail(where, "rests on the floor; objects must rest on a fixture, a drawer or another object")
         below = max((s for s in under if s.z <= bottom + SUPPORT_TOLERANCE), key=lambda s: s.z, default=None)
