@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from rlgp_exec.errors import RlgpError
 
@@ -72,11 +72,11 @@ def scene_path(name: str) -> Path:
 
 def run_demo(out: Path, seed: int = 0) -> DemoReport:
     """Run every stage this build has on the HSR table-clearing scene; files go to ``out``."""
+    import cv2
+
     from rlgp_exec.scene import load_scene, randomize
     from sim.render import render_world
     from sim.world import build_world
-
-    import cv2
 
     out.mkdir(parents=True, exist_ok=True)
     report = DemoReport(DEMO_SCENE)
@@ -85,7 +85,8 @@ def run_demo(out: Path, seed: int = 0) -> DemoReport:
     def load() -> str:
         scene = randomize(load_scene(scene_path(DEMO_SCENE)), seed)
         state["scene"] = scene
-        return f"{len(scene.fixtures)} fixtures, {len(scene.objects)} objects, goal {' '.join(map(str, scene.goal.literals))}"
+        goal = " ".join(map(str, scene.goal.literals))
+        return f"{len(scene.fixtures)} fixtures, {len(scene.objects)} objects, goal {goal}"
 
     def world() -> str:
         w = build_world(state["scene"])  # type: ignore[arg-type]

@@ -60,7 +60,9 @@ def render_world(world: World, width: int = 960, height: int = 720, view: str = 
     return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
 
 
-def render_scene_png(scene: Scene, path: str | Path, width: int = 960, height: int = 720, view: str = "overview") -> Path:
+def render_scene_png(
+    scene: Scene, path: str | Path, width: int = 960, height: int = 720, view: str = "overview"
+) -> Path:
     """Build ``scene``, render it and write a PNG; returns the path."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -61,7 +61,7 @@ def tag_image(tag_id: int, px_per_cell: int = _PX_PER_CELL) -> np.ndarray:
                               cv2.BORDER_CONSTANT, value=255)
 
 
-def _atomic_write(path: Path, write) -> None:  # noqa: ANN001
+def _atomic_write(path: Path, write) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp{path.suffix}")
     write(tmp)
     os.replace(tmp, path)

@@ -9,8 +9,8 @@ drawer (with its knob) a link on a prismatic joint along the cabinet's local +x.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 import pybullet as p
@@ -176,7 +176,7 @@ def _static_body(client: int, boxes: Sequence[Box], collision: bool = True) -> i
     return p.createMultiBody(0.0, col, vis, physicsClientId=client)
 
 
-def _cabinet_body(client: int, fixture) -> CabinetBody:  # noqa: ANN001 - scene Fixture
+def _cabinet_body(client: int, fixture) -> CabinetBody:
     g = cabinet_geometry(fixture)
     T_world_base = g.T_world_cabinet
     base_col, base_vis = _box_shapes(client, g.carcass, T_world_base)
@@ -198,7 +198,7 @@ def _cabinet_body(client: int, fixture) -> CabinetBody:  # noqa: ANN001 - scene 
     return CabinetBody(body=body, drawer_joint=0, travel=float(g.travel))
 
 
-def _object_body(client: int, obj, tags: bool) -> int:  # noqa: ANN001 - scene SceneObject
+def _object_body(client: int, obj, tags: bool) -> int:
     """A dynamic body; a tagged object carries its tag quad as a fixed child link (link 0)."""
     b = object_box(obj)
     half = [float(s) / 2 for s in b.size]

@@ -169,7 +169,8 @@ def test_hsr_body_height_with_the_lift(lift, height):
     try:
         body = PyBulletRobot(hsr, client)
         body.set_q(hsr.home(joints={"arm_lift_joint": lift, "head_tilt_joint": 0.0, "arm_flex_joint": -1.57}))
-        top = max(p.getAABB(body.id, i, physicsClientId=client)[1][2] for i in range(p.getNumJoints(body.id, physicsClientId=client)))
+        n_links = p.getNumJoints(body.id, physicsClientId=client)
+        top = max(p.getAABB(body.id, i, physicsClientId=client)[1][2] for i in range(n_links))
         assert top == pytest.approx(height, abs=0.02)
         base_aabb = p.getAABB(body.id, body.link_index["base_link"], physicsClientId=client)
         assert base_aabb[1][0] - base_aabb[0][0] == pytest.approx(0.43, abs=0.008)  # AABBs carry a margin

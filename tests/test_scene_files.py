@@ -114,7 +114,8 @@ BAD = [
     ("unknown colour", lambda d: d["object"][0].update(color="teal"), "'block_blue'.color", "valid"),
     ("nan pose", lambda d: d["object"][0].update(pose=[0.0, 0.0, float("nan"), 0.0]), "'block_blue'.pose", "number"),
     ("floating object", lambda d: d["object"][0]["pose"].__setitem__(2, 1.2), "'block_blue'.pose", "float"),
-    ("sunk object", lambda d: d["object"][0]["pose"].__setitem__(2, 0.70), "'block_blue'.pose", "sunk into 'table_mid'"),
+    ("sunk object", lambda d: d["object"][0]["pose"].__setitem__(2, 0.70), "'block_blue'.pose",
+     "sunk into 'table_mid'"),
     ("goal names an unknown object", lambda d: d["goal"].update(literals=["(on ghost tray_blue)"]),
      "[goal].literals[0]", "unknown object 'ghost'"),
     ("goal with unknown predicate", lambda d: d["goal"].update(literals=["(near block_blue tray_blue)"]),
@@ -142,7 +143,7 @@ def test_bad_scene_fails_naming_file_table_and_field(case, fn, where, text):
 
 
 def test_unreadable_and_non_toml_files(tmp_path):
-    with pytest.raises(SceneError, match="missing.toml"):
+    with pytest.raises(SceneError, match=r"missing\.toml"):
         load_scene(tmp_path / "missing.toml")
     bad = tmp_path / "broken.toml"
     bad.write_text("[scene\nname = 1")
@@ -154,7 +155,7 @@ def test_drawer_that_does_not_fit_is_rejected():
     def fn(d):
         d["fixture"][1]["drawer"]["knob_height"] = 0.05
 
-    with pytest.raises(SceneError, match="'cabinet'.drawer.knob_height"):
+    with pytest.raises(SceneError, match=r"'cabinet'\.drawer\.knob_height"):
         scene_from_dict(mutate("table_clearing_hsr", fn), "t.toml")
 
 

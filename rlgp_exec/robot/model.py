@@ -11,8 +11,8 @@ Internally pinocchio sees the full tree; ``q_full = A @ q + b`` maps our ``q`` t
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping, Sequence
 from functools import cached_property
-from typing import Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -69,7 +69,9 @@ class RobotModel:
         full_idx = {m.names[j]: m.joints[j].idx_q for j in range(1, m.njoints)}
         for n in self.joint_names:
             if n not in full_idx:
-                raise ModelError(f"{self.name}: group joint {n!r} is not a movable URDF joint; valid: {sorted(full_idx)}")
+                raise ModelError(
+                    f"{self.name}: group joint {n!r} is not a movable URDF joint; valid: {sorted(full_idx)}"
+                )
         A = np.zeros((m.nq, self.nq))
         b = np.zeros(m.nq)
         for n, i in self._index.items():

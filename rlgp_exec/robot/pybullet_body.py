@@ -10,8 +10,8 @@ PyBullet's narrow phase once and filter the robot's contacts by penetration dept
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 import pybullet as p
@@ -73,13 +73,15 @@ class PyBulletRobot:
             self.joint_index[jname] = i
             self.link_index[lname] = i
             parent = info[16]
-            self.parent_link[lname] = "world" if parent < 0 else p.getJointInfo(self.id, parent, physicsClientId=client)[12].decode()
+            parent_info = p.getJointInfo(self.id, parent, physicsClientId=client) if parent >= 0 else None
+            self.parent_link[lname] = parent_info[12].decode() if parent_info else "world"
         self.link_name = {i: n for n, i in self.link_index.items()}
         pm = model.pin_model
         self._full_joints = [(self.joint_index[pm.names[j]], pm.joints[j].idx_q) for j in range(1, pm.njoints)]
         self.allowed_pairs = self._allowed_pairs()
         for a, b in self.allowed_pairs:
-            p.setCollisionFilterPair(self.id, self.id, self.link_index[a], self.link_index[b], 0, physicsClientId=client)
+            ia, ib = self.link_index[a], self.link_index[b]
+            p.setCollisionFilterPair(self.id, self.id, ia, ib, 0, physicsClientId=client)
         self._ignored_bodies: set[int] = set()
         self.set_q(model.home())
 

@@ -201,4 +201,4 @@ def pose_of(T: FloatArray) -> tuple[float, float, float, float]:
     return (float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), float(np.arctan2(T[1, 0], T[0, 0])))
 
 
-__all__ += ["pose_of", "pose_matrix"]
+__all__ += ["pose_matrix", "pose_of"]

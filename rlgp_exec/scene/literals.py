@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from rlgp_exec.errors import SceneError
 from rlgp_exec.scene.types import Literal, Scene

@@ -157,9 +157,11 @@ def _fixture(r: _Reader, t: Any, i: int) -> Fixture:
 
         depth = size[0] - 2.5 * PANEL
         if drawer.travel > depth - 2 * PANEL:
-            raise r.fail(f"{where}.drawer.travel", f"{drawer.travel} m exceeds the drawer depth ({depth - 2 * PANEL:.3f} m)")
+            raise r.fail(f"{where}.drawer.travel",
+                         f"{drawer.travel} m exceeds the drawer depth ({depth - 2 * PANEL:.3f} m)")
         bottom, top = pose[2] - size[2] / 2 + PANEL, pose[2] + size[2] / 2 - PANEL
-        if drawer.knob_height - drawer.height / 2 - 0.005 < bottom or drawer.knob_height + drawer.height / 2 + 0.005 > top:
+        lo, hi = drawer.knob_height - drawer.height / 2 - 0.005, drawer.knob_height + drawer.height / 2 + 0.005
+        if lo < bottom or hi > top:
             raise r.fail(f"{where}.drawer.knob_height", f"the drawer (height {drawer.height} m centred at "
                          f"{drawer.knob_height} m) does not fit between {bottom:.3f} and {top:.3f} m")
     elif "drawer" in t:
