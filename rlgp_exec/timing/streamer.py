@@ -1,0 +1,211 @@
+"""Ruckig online motion generation at the control rate: follow, re-target, stop, hold.
+
+Each cycle the streamer asks Ruckig for a jerk-limited motion from its current state (q, dq, ddq)
+towards a target state, and outputs that motion's state one control period later:
+
+- FOLLOW: the followed trajectory's state one *look-ahead* ``L`` later, to be reached in exactly
+  ``L`` (``minimum_duration`` with time synchronisation). Ruckig then behaves as a jerk-limited
+  tracking filter: it stays in phase with the reference instead of racing to a state snapshot,
+  which is what a time-optimal point-to-point step towards the next sample does (it lags by tens
+  of centimetres on a trajectory at its acceleration limits). ``L`` defaults to four acceleration
+  ramp times, 4 max(a / j). A trajectory timed at the full limits cannot be tracked exactly by a
+  jerk-limited follower (TOPPRA's acceleration jumps); time the trajectories the streamer follows
+  with ``TRACKING_HEADROOM`` (90 % velocity, 80 % acceleration) and the tracking error stays in
+  the millimetres.
+- STOP: zero velocity and acceleration through Ruckig's velocity interface: a jerk-limited ramp.
+- HOLD: the position where it is, at rest.
+
+Re-targeting switches the followed trajectory in place: Ruckig always starts from the current
+state, so position, velocity and acceleration stay continuous. Continuous joints are handled
+unwrapped; a new trajectory is shifted by whole turns to start next to the current angles.
+
+The base's x and y limits act on world-frame axes here, at sqrt(2) times the base-frame limit:
+the trajectories followed already respect the base-frame box (see ``toppra_param``), whose
+world-frame components can reach sqrt(2) v on a diagonal.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, Synchronization
+
+from rlgp_exec.robot.config import BASE_JOINTS
+from rlgp_exec.robot.limits import JointLimits
+from rlgp_exec.timing.trajectory import FloatArray, TimingError, Trajectory
+
+__all__ = ["TRACKING_HEADROOM", "Setpoint", "StreamMode", "Streamer", "stop_time_bound"]
+
+#: (velocity, acceleration) factors for timing trajectories the streamer follows: ``limits.scaled(*TRACKING_HEADROOM)``
+TRACKING_HEADROOM = (0.9, 0.8)
+
+
+class StreamMode(enum.Enum):
+    HOLD = "hold"
+    FOLLOW = "follow"
+    STOP = "stop"
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """One control-cycle output; positions unwrapped (``q_wrapped`` for the wire)."""
+
+    t: float  # [s] since the streamer started
+    q: FloatArray
+    dq: FloatArray
+    ddq: FloatArray
+    q_wrapped: FloatArray
+    mode: StreamMode
+    finished: bool  # FOLLOW: trajectory done and reached; STOP: at rest; HOLD: always True
+    compute_us: float  # this cycle's Ruckig call, wall clock from Python [us]
+    ruckig_us: float  # Ruckig's own calculation time for the cycle [us]
+
+
+def stop_time_bound(limits: JointLimits, dq: FloatArray, ddq: FloatArray) -> float:
+    """An upper bound [s] on a jerk-limited stop from (dq, ddq): ramp the acceleration to the
+    opposite limit, brake, ramp it back to zero, per joint (the slowest joint decides)."""
+    a, j = limits.acceleration, limits.jerk
+    t = (np.abs(ddq) + a) / j + np.abs(dq) / a + a / j + np.abs(ddq) / a
+    return float(np.max(t))
+
+
+class Streamer:
+    """Jerk-limited setpoints at a fixed period ``dt`` [s] (0.01 s for the HSR's 100 Hz controllers)."""
+
+    def __init__(
+        self, limits: JointLimits, dt: float = 0.01, q0: FloatArray | None = None, lookahead: float | None = None
+    ) -> None:
+        if not (dt > 0 and np.isfinite(dt)):
+            raise TimingError(f"control period must be > 0 s, got {dt}")
+        for what in ("velocity", "acceleration", "jerk"):
+            v = getattr(limits, what)
+            if not np.all(np.isfinite(v) & (v > 0)):
+                raise TimingError(f"{what} limits must be finite and > 0, got {v.tolist()}")
+        self.limits, self.dt, n = limits, float(dt), limits.n
+        self._otg = Ruckig(n, self.dt)
+        self._inp, self._out = InputParameter(n), OutputParameter(n)
+        vmax = limits.velocity.copy()
+        if limits.names[:3] == BASE_JOINTS:
+            vmax[:2] *= np.sqrt(2.0)
+        self._vmax, self._amax = vmax, limits.acceleration.copy()
+        self._inp.max_velocity = vmax.tolist()
+        self._inp.max_acceleration = self._amax.tolist()
+        self._inp.max_jerk = limits.jerk.tolist()
+        ramp = float(np.max(limits.acceleration / limits.jerk))
+        self.lookahead = max(4.0 * ramp, 2.0 * self.dt) if lookahead is None else float(lookahead)
+        if not (self.lookahead >= self.dt and np.isfinite(self.lookahead)):
+            raise TimingError(f"look-ahead must be at least one control period ({self.dt} s), got {lookahead}")
+        self.t = 0.0
+        self.q = np.zeros(n) if q0 is None else np.asarray(q0, float).copy()
+        self.dq, self.ddq = np.zeros(n), np.zeros(n)
+        self.mode = StreamMode.HOLD
+        self._hold_q = self.q.copy()
+        self._traj: Trajectory | None = None
+        self._offset = np.zeros(n)
+        self._t_traj = 0.0
+
+    # ------------------------------------------------------------------ commands
+    def reset(self, q: FloatArray, dq: FloatArray | None = None, ddq: FloatArray | None = None) -> None:
+        """Take the robot's measured state as the current state (and hold there)."""
+        q = np.asarray(q, float)
+        if q.shape != (self.limits.n,) or not np.all(np.isfinite(q)):
+            raise TimingError(f"state must be {self.limits.n} finite values, got {q}")
+        self.q = q.copy()
+        self.dq = np.zeros_like(q) if dq is None else np.asarray(dq, float).copy()
+        self.ddq = np.zeros_like(q) if ddq is None else np.asarray(ddq, float).copy()
+        self.hold()
+
+    def follow(self, trajectory: Trajectory) -> None:
+        """Follow ``trajectory`` from now on (also the way to re-target mid-motion)."""
+        if trajectory.names != self.limits.names:
+            raise TimingError(
+                f"trajectory joints {list(trajectory.names)} != streamer joints {list(self.limits.names)}"
+            )
+        start = trajectory.sample(0.0, wrap=False)[0]
+        turns = np.round((self.q - start) / (2 * np.pi)) * (2 * np.pi)
+        self._offset = np.where(self.limits.continuous, turns, 0.0)
+        self._traj, self._t_traj = trajectory, 0.0
+        self.mode = StreamMode.FOLLOW
+
+    retarget = follow
+
+    def stop(self) -> None:
+        """Brake to rest with a jerk-limited ramp (pre-emption, e-stop ramp)."""
+        self.mode = StreamMode.STOP
+        self._traj = None
+
+    def hold(self) -> None:
+        self.mode = StreamMode.HOLD
+        self._traj = None
+        self._hold_q = self.q.copy()
+
+    def _reachable_target(self, dq: FloatArray, ddq: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Clip a target (velocity, acceleration) to one Ruckig accepts: inside the limits, and with
+        |v| + a^2 / (2 j) <= v_max, the peak velocity on either side of the target state under the
+        jerk limit (Ruckig checks both: the state before a braking target was faster)."""
+        v = np.clip(dq, -0.9999 * self._vmax, 0.9999 * self._vmax)
+        a = np.clip(ddq, -0.9999 * self._amax, 0.9999 * self._amax)
+        room = np.sqrt(2.0 * self.limits.jerk * np.maximum(0.9999 * self._vmax - np.abs(v), 0.0))
+        a = np.sign(a) * np.minimum(np.abs(a), 0.999 * room)
+        return v, a
+
+    # ------------------------------------------------------------------ cycle
+    def step(self) -> Setpoint:
+        """Advance one control period and return the new setpoint."""
+        inp = self._inp
+        inp.current_position, inp.current_velocity, inp.current_acceleration = (
+            self.q.tolist(),
+            self.dq.tolist(),
+            self.ddq.tolist(),
+        )
+        finished_traj = False
+        if self.mode is StreamMode.STOP:
+            inp.control_interface = ControlInterface.Velocity
+            inp.synchronization, inp.minimum_duration = Synchronization.No, None
+            inp.target_velocity = [0.0] * self.limits.n
+            inp.target_acceleration = [0.0] * self.limits.n
+        elif self.mode is StreamMode.FOLLOW and self._traj is not None:
+            inp.control_interface = ControlInterface.Position
+            inp.synchronization, inp.minimum_duration = Synchronization.Time, self.lookahead
+            q_t, dq_t, ddq_t = self._traj.sample(self._t_traj + self.lookahead, wrap=False)
+            self._t_traj += self.dt
+            finished_traj = self._t_traj >= self._traj.duration
+            v_t, a_t = self._reachable_target(dq_t, ddq_t)
+            inp.target_position = (q_t + self._offset).tolist()
+            inp.target_velocity, inp.target_acceleration = v_t.tolist(), a_t.tolist()
+        else:
+            inp.control_interface = ControlInterface.Position
+            inp.synchronization, inp.minimum_duration = Synchronization.No, None
+            inp.target_position = self._hold_q.tolist()
+            inp.target_velocity = [0.0] * self.limits.n
+            inp.target_acceleration = [0.0] * self.limits.n
+        t0 = time.perf_counter()
+        res = self._otg.update(inp, self._out)
+        compute_us = (time.perf_counter() - t0) * 1e6
+        if res not in (Result.Working, Result.Finished):
+            raise TimingError(f"Ruckig rejected the cycle input ({res}); state q={self.q}, dq={self.dq}")
+        out = self._out
+        self.q = np.asarray(out.new_position)
+        self.dq = np.asarray(out.new_velocity)
+        self.ddq = np.asarray(out.new_acceleration)
+        self.t += self.dt
+        if self.mode is StreamMode.FOLLOW:
+            finished = finished_traj and res == Result.Finished
+        elif self.mode is StreamMode.STOP:
+            finished = bool(np.all(np.abs(self.dq) < 1e-9) and np.all(np.abs(self.ddq) < 1e-9))
+        else:
+            finished = True
+        return Setpoint(
+            self.t,
+            self.q.copy(),
+            self.dq.copy(),
+            self.ddq.copy(),
+            self.limits.wrap(self.q),
+            self.mode,
+            finished,
+            compute_us,
+            float(out.calculation_duration),
+        )

@@ -1,0 +1,342 @@
+"""Time-optimal path parameterisation with TOPPRA under velocity and acceleration limits.
+
+A phase path (T, N) is interpolated by a shape-preserving cubic (PCHIP) through its waypoints,
+parameterised by normalised cumulative chord length, and retimed rest-to-rest by TOPPRA (seidel solver). The
+omnidirectional base's velocity limits hold along the *base* frame's axes: the path's world-frame
+velocity rotated by -yaw must satisfy |v_bx| <= vx, |v_by| <= vy. This is exact, as a
+path-varying limit on the world-frame x/y joints: at each gridpoint the largest path speed is
+sdot_max(s) = min_i v_i / |(R(-yaw) [x', y'])_i|, imposed as |x'| sdot <= |x'| sdot_max(s) (and
+likewise for y). Base accelerations use the conservative world-frame bound a / sqrt(2).
+
+TOPPRA enforces the limits at gridpoints; between them the spline can overshoot by a few per
+cent. Every result is therefore sampled densely and, if it breaks a limit, recomputed with the
+limits scaled by the overshoot (at most ``MAX_RETRIES`` times): the returned trajectory respects
+the limits at every sample, or the status says why not.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import toppra as ta
+import toppra.algorithm as ta_algo
+import toppra.constraint as ta_con
+
+from rlgp_exec.robot.config import BASE_JOINTS
+from rlgp_exec.robot.limits import JointLimits
+from rlgp_exec.timing.trajectory import (
+    FloatArray,
+    PhaseKind,
+    Segment,
+    TimingError,
+    TimingResult,
+    TimingStatus,
+    Trajectory,
+    as_path,
+)
+
+__all__ = ["MAX_RETRIES", "ConstAccelPiece", "PchipPath", "time_parameterize", "time_parameterize_phases"]
+
+log = logging.getLogger(__name__)
+logging.getLogger("toppra").setLevel(logging.WARNING)
+
+MAX_RETRIES = 4
+CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
+POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
+_DUP = 1e-9
+
+
+class PchipPath(ta.interpolator.AbstractGeometricPath):
+    """Shape-preserving cubic (PCHIP) through the waypoints, per joint: C1, and it never leaves the
+    range of two neighbouring waypoints, so a path whose waypoints respect the position limits does
+    too (a natural cubic spline overshoots)."""
+
+    def __init__(self, ss: FloatArray, waypoints: FloatArray) -> None:
+        from scipy.interpolate import PchipInterpolator
+
+        self._ss, self._wp = ss, waypoints
+        self._f = PchipInterpolator(ss, waypoints, axis=0)
+        self._d = (self._f, self._f.derivative(1), self._f.derivative(2))
+
+    def __call__(self, path_positions, order: int = 0):
+        return self._d[order](path_positions)
+
+    @property
+    def dof(self) -> int:
+        return int(self._wp.shape[1])
+
+    @property
+    def path_interval(self) -> FloatArray:
+        return np.array([self._ss[0], self._ss[-1]])
+
+    @property
+    def waypoints(self):
+        return self._ss, self._wp
+
+
+class ConstAccelPiece:
+    """The time parameterisation TOPPRA computed, with constant path acceleration between gridpoints.
+
+    From gridpoints s_i and path speeds sd_i: sdd_i = (sd_{i+1}^2 - sd_i^2) / (2 ds_i) and
+    dt_i = 2 ds_i / (sd_i + sd_{i+1}); then q = p(s), dq = p'(s) sd, ddq = p''(s) sd^2 + p'(s) sdd.
+    Evaluated vectorised (toppra's own evaluator loops in Python).
+    """
+
+    def __init__(self, path: PchipPath, ss: FloatArray, sd: FloatArray) -> None:
+        self.path = path
+        sd = np.maximum(np.asarray(sd, float), 0.0)
+        ds = np.diff(ss)
+        denom = sd[:-1] + sd[1:]
+        if np.any(denom <= 0.0):
+            raise ArithmeticError("zero path speed over a whole interval")
+        self._ss, self._sd = ss, sd
+        self._sdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2.0 * ds)
+        self._tt = np.r_[0.0, np.cumsum(2.0 * ds / denom)]
+        self.duration = float(self._tt[-1])
+
+    def state(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(s, sd, sdd) at times t (T,)."""
+        t = np.clip(np.atleast_1d(np.asarray(t, float)), 0.0, self.duration)
+        i = np.clip(np.searchsorted(self._tt, t, side="right") - 1, 0, len(self._sdd) - 1)
+        tau = t - self._tt[i]
+        sdd = self._sdd[i]
+        s = np.minimum(self._ss[i] + self._sd[i] * tau + 0.5 * sdd * tau**2, self._ss[-1])
+        return s, self._sd[i] + sdd * tau, sdd
+
+    def __call__(self, t: FloatArray, order: int = 0) -> FloatArray:
+        s, sd, sdd = self.state(t)
+        if order == 0:
+            return self.path(s)
+        if order == 1:
+            return self.path(s, 1) * sd[:, None]
+        return self.path(s, 2) * (sd**2)[:, None] + self.path(s, 1) * sdd[:, None]
+
+
+class _Hold:
+    """A zero-length piece: the robot stays at q."""
+
+    def __init__(self, q: FloatArray) -> None:
+        self.q = q
+        self.duration = 0.0
+
+    def __call__(self, t: FloatArray, order: int = 0) -> FloatArray:
+        t = np.atleast_1d(t)
+        return np.tile(self.q if order == 0 else np.zeros_like(self.q), (t.shape[0], 1))
+
+
+def _check_limits(limits: JointLimits) -> None:
+    for what in ("velocity", "acceleration"):
+        v = getattr(limits, what)
+        if not np.all(np.isfinite(v) & (v > 0)):
+            raise TimingError(f"{what} limits must be finite and > 0, got {v.tolist()}")
+
+
+def _has_base(limits: JointLimits) -> bool:
+    return limits.names[:3] == BASE_JOINTS
+
+
+def _body_speeds(q: FloatArray, dq: FloatArray) -> FloatArray:
+    """|base-frame velocity| (T, 2) from world-frame base x, y velocities and yaw."""
+    c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
+    return np.abs(np.stack([c * dq[:, 0] + s * dq[:, 1], -s * dq[:, 0] + c * dq[:, 1]], axis=1))
+
+
+def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> float:
+    # evenly spaced samples, plus each gridpoint's left limit: PCHIP's second derivative jumps at
+    # the waypoints, and the waypoints are gridpoints
+    ts = np.linspace(0.0, spline.duration, CHECK_PER_INTERVAL * (len(spline._tt) - 1) + 1)
+    ts = np.r_[ts, np.maximum(spline._tt[1:] - 1e-9, 0.0)]
+    q, dq, ddq = spline(ts), spline(ts, 1), spline(ts, 2)
+    v_ratio = np.abs(dq) / limits.velocity
+    a_lim = limits.acceleration.copy()
+    if base:
+        v_ratio[:, :2] = _body_speeds(q, dq) / limits.velocity[:2]
+        a_lim[:2] /= np.sqrt(2.0)
+    return float(max(v_ratio.max(), (np.abs(ddq) / a_lim).max()))
+
+
+def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
+    v, a = limits.velocity, limits.acceleration.copy()
+    if base:
+        a[:2] /= np.sqrt(2.0)
+        vb = v[:2]
+
+        def vlim(s: float) -> FloatArray:
+            q, dq = path(np.array([s]))[0], path(np.array([s]), 1)[0]
+            c, sn = np.cos(q[2]), np.sin(q[2])
+            body = np.abs([c * dq[0] + sn * dq[1], -sn * dq[0] + c * dq[1]])
+            with np.errstate(divide="ignore"):
+                sd_max = float(np.min(np.where(body > 1e-12, vb / body, np.inf)))
+            out = np.c_[-v, v].astype(float)
+            if np.isfinite(sd_max):
+                out[:2, 1] = np.abs(dq[:2]) * sd_max + 1e-9
+                out[:2, 0] = -out[:2, 1]
+            return out
+
+        pc_v = ta_con.JointVelocityConstraintVarying(vlim)
+    else:
+        pc_v = ta_con.JointVelocityConstraint(np.c_[-v, v])
+    pc_a = ta_con.JointAccelerationConstraint(
+        np.c_[-a, a], discretization_scheme=ta_con.DiscretizationType.Interpolation
+    )
+    # PCHIP's second derivative jumps at the waypoints: put a gridpoint on each waypoint and one just
+    # before it, so that TOPPRA constrains both one-sided values. That tiny interval can make the
+    # interpolation scheme uncontrollable where a joint reverses; then the waypoints alone (the
+    # verification below catches what the one-sided values add).
+    inner = path.waypoints[0][1:-1]
+    uniform = np.linspace(0.0, 1.0, max(gridpoints + 1 - 2 * len(inner), 2))
+    data = None
+    for grid in (np.r_[uniform, inner, inner - 1e-6], np.r_[uniform, inner]):
+        grid = np.unique(grid)
+        grid = grid[np.r_[True, np.diff(grid) > 1e-9]]
+        inst = ta_algo.TOPPRA([pc_v, pc_a], path, gridpoints=grid, solver_wrapper="seidel")
+        inst.compute_parameterization(0.0, 0.0)
+        data = inst.problem_data
+        if data.return_code == ta_algo.ParameterizationReturnCode.Ok and data.sd_vec is not None:
+            break
+    else:
+        return None
+    return ConstAccelPiece(path, np.asarray(data.gridpoints), np.asarray(data.sd_vec))
+
+
+def time_parameterize(
+    path: Sequence[Sequence[float]] | FloatArray, limits: JointLimits, *, gridpoints: int = 100
+) -> TimingResult:
+    """Retime one phase path (T, N) rest-to-rest. Bad input raises TimingError; failures are statuses."""
+    t0 = time.perf_counter()
+    _check_limits(limits)
+    if not (isinstance(gridpoints, int) and gridpoints >= 2):
+        raise TimingError(f"gridpoints must be an integer >= 2, got {gridpoints!r}")
+    p = limits.unwrap(as_path(path, limits))
+    keep = np.r_[True, np.linalg.norm(np.diff(p, axis=0), axis=1) > _DUP]
+    p = p[keep]
+    if p.shape[0] == 1:  # nothing moves
+        traj = Trajectory(limits.names, limits, (_Hold(p[0]),), (Segment(PhaseKind.MOTION, 0.0, 0.0),))
+        return TimingResult(TimingStatus.OK, "no motion", traj, (time.perf_counter() - t0) * 1e3)
+    chord = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+    spline_path = PchipPath(chord / chord[-1], p)
+    ss = np.linspace(0.0, 1.0, 2001)
+    q_path = spline_path(ss)
+    over = np.maximum(limits.lower - q_path, q_path - limits.upper).max(axis=0)
+    if np.any(over > POSITION_TOLERANCE):
+        bad = [limits.names[i] for i in np.flatnonzero(over > POSITION_TOLERANCE)]
+        return TimingResult(
+            TimingStatus.LIMIT_VIOLATION,
+            f"the interpolated path leaves the position limits of {bad}",
+            compute_ms=(time.perf_counter() - t0) * 1e3,
+        )
+    base = _has_base(limits)
+    work = limits
+    for attempt in range(MAX_RETRIES + 1):
+        try:
+            spline = _solve(spline_path, work, base, gridpoints)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+            return TimingResult(
+                TimingStatus.NUMERICAL,
+                f"TOPPRA failed: {type(e).__name__}: {e}",
+                compute_ms=(time.perf_counter() - t0) * 1e3,
+                retries=attempt,
+            )
+        if spline is None:
+            return TimingResult(
+                TimingStatus.INFEASIBLE,
+                "TOPPRA found no parameterisation under the limits",
+                compute_ms=(time.perf_counter() - t0) * 1e3,
+                retries=attempt,
+            )
+        if not np.isfinite(spline.duration) or spline.duration <= 0.0:
+            return TimingResult(
+                TimingStatus.NUMERICAL,
+                f"TOPPRA returned duration {spline.duration}",
+                compute_ms=(time.perf_counter() - t0) * 1e3,
+                retries=attempt,
+            )
+        ratio = _worst_ratio(spline, limits, base)
+        if ratio <= 1.0 + 1e-6:
+            traj = Trajectory(
+                limits.names, limits, (spline,), (Segment(PhaseKind.MOTION, 0.0, float(spline.duration)),)
+            )
+            return TimingResult(TimingStatus.OK, "ok", traj, (time.perf_counter() - t0) * 1e3, attempt)
+        scale = min(0.999 / ratio, 0.999)
+        work = JointLimits(
+            work.names,
+            work.lower,
+            work.upper,
+            work.velocity * scale,
+            work.acceleration * scale,
+            work.jerk,
+            work.continuous,
+        )
+        log.debug("TOPPRA overshoot %.4f: retry %d with limits x %.4f", ratio, attempt + 1, scale)
+    return TimingResult(
+        TimingStatus.LIMIT_VIOLATION,
+        f"limits still exceeded by {ratio - 1:.2%} after {MAX_RETRIES} retries",
+        compute_ms=(time.perf_counter() - t0) * 1e3,
+        retries=MAX_RETRIES,
+    )
+
+
+def time_parameterize_phases(
+    phases: Sequence[tuple[PhaseKind, Sequence[Sequence[float]] | FloatArray]],
+    limits: JointLimits,
+    *,
+    gridpoints: int = 100,
+    continuity_tolerance: float = 1e-6,
+) -> TimingResult:
+    """Retime consecutive phases separately (each rest-to-rest) into one piece-wise trajectory.
+
+    Gripper and articulated phases stay their own segments, so the executive knows where each starts.
+    Consecutive phases must meet: the last waypoint of one is the first of the next.
+    """
+    if not phases:
+        raise TimingError("no phases to parameterise")
+    t0 = time.perf_counter()
+    pieces, segments, t, retries = [], [], 0.0, 0
+    prev_end: FloatArray | None = None
+    for i, (kind, path) in enumerate(phases):
+        if not isinstance(kind, PhaseKind):
+            raise TimingError(
+                f"phase {i}: kind must be a PhaseKind, got {kind!r}; valid: {[k.name for k in PhaseKind]}"
+            )
+        p = as_path(path, limits)
+        if prev_end is not None:
+            gap = np.abs(limits.difference(p[0], prev_end)).max()
+            if gap > continuity_tolerance:
+                raise TimingError(f"phase {i} starts {gap:.3g} away from where phase {i - 1} ends")
+        res = time_parameterize(p, limits, gridpoints=gridpoints)
+        if not res.ok:
+            return TimingResult(
+                res.status,
+                f"phase {i} ({kind.value}): {res.reason}",
+                compute_ms=(time.perf_counter() - t0) * 1e3,
+                retries=retries + res.retries,
+            )
+        assert res.trajectory is not None
+        retries += res.retries
+        piece = res.trajectory.pieces[0]
+        if pieces:  # keep the unwrapped angles continuous from one phase to the next
+            last = pieces[-1](np.array([pieces[-1].duration]))[0]
+            first = piece(np.array([0.0]))[0]
+            shift = np.round((last - first) / (2 * np.pi)) * 2 * np.pi * limits.continuous
+            if np.any(shift):
+                piece = _Shifted(piece, shift)
+        pieces.append(piece)
+        segments.append(Segment(kind, t, t + res.trajectory.duration))
+        t += res.trajectory.duration
+        prev_end = p[-1]
+    traj = Trajectory(limits.names, limits, tuple(pieces), tuple(segments))
+    return TimingResult(TimingStatus.OK, "ok", traj, (time.perf_counter() - t0) * 1e3, retries)
+
+
+class _Shifted:
+    """A piece whose positions are offset by whole turns on continuous joints."""
+
+    def __init__(self, piece, shift: FloatArray) -> None:
+        self.piece, self.shift, self.duration = piece, shift, piece.duration
+
+    def __call__(self, t: FloatArray, order: int = 0) -> FloatArray:
+        out = self.piece(t, order)
+        return out + self.shift if order == 0 else out
