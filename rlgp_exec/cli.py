@@ -79,14 +79,59 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 2
     _write_json(args.json, result)
     for k, v in result.get("summary", {}).items():
-        print(f"{k:40s} {v}")
+        if isinstance(v, dict):
+            for k2, v2 in v.items():
+                print(f"{k}.{k2}: {v2}")
+        else:
+            print(f"{k:40s} {v}")
     return 0
 
 
 # ---------------------------------------------------------------------------------- perceive
 def cmd_perceive(args: argparse.Namespace) -> int:
-    print("rlgp-exec perceive: not available in this build: it needs the perception layer (issue 8).", file=sys.stderr)
-    return 2
+    if args.image:
+        import numpy as np
+
+        from perception.camera import CameraIntrinsics
+        from perception.runner import perceive_image
+
+        if not args.intrinsics:
+            raise RlgpError("--image needs --intrinsics W,H,fx,fy,cx,cy (and --tag-size)")
+        tags = perceive_image(args.image, CameraIntrinsics.parse(args.intrinsics), args.tag_size, args.detector)
+        for t in tags:
+            pos = (
+                "-" if not t.get("T_camera_tag") else " ".join(f"{v:+.4f}" for v in np.array(t["T_camera_tag"])[:3, 3])
+            )
+            print(f"tag {t['tag_id']:4d}  {'ok' if t['ok'] else 'rejected':8s}  t_camera_tag [m] {pos}  {t['reason']}")
+        if not tags:
+            print("no tags found")
+        _write_json(args.json, {"image": args.image, "tags": tags})
+        return 0
+    if not args.scene:
+        raise RlgpError("give a SCENE file, or --image FILE --intrinsics W,H,fx,fy,cx,cy")
+    from perception.runner import perceive_scene
+    from rlgp_exec.scene import load_scene
+
+    scene = load_scene(args.scene)
+    res = perceive_scene(scene, perturb_m=args.perturb, seed=args.seed, noise_std=args.noise, detector=args.detector)
+    print(f"{scene.name}: {res.views} camera views")
+    for name in sorted(res.errors_mm):
+        err, rot = res.errors_mm[name], res.yaw_errors_deg[name]
+        print(f"  {name:20s} position error {err:6.2f} mm  rotation error {rot:5.2f} deg")
+    for name in sorted(res.missing):
+        print(f"  {name:20s} not seen")
+    _write_json(
+        args.json,
+        {
+            "scene": scene.name,
+            "views": res.views,
+            "pos_err_mm": res.errors_mm,
+            "rot_err_deg": res.yaw_errors_deg,
+            "missing": sorted(res.missing),
+            "uncertain": sorted(res.uncertain),
+        },
+    )
+    return 0 if not res.missing else 1
 
 
 # ---------------------------------------------------------------------------------- demo
@@ -128,7 +173,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_bench)
 
     s = sub.add_parser("perceive", help="detect AprilTags in rendered or given images")
-    s.add_argument("scene")
+    s.add_argument("scene", nargs="?", help="a scene: look around for its tagged objects in simulation")
+    s.add_argument("--image", help="an image file (PNG/JPEG) from a real camera instead of a scene")
+    s.add_argument("--intrinsics", help="with --image: W,H,fx,fy,cx,cy [px]")
+    s.add_argument("--tag-size", type=float, default=0.04, help="with --image: black-square edge [m]")
+    s.add_argument("--perturb", type=float, default=0.0, help="move objects up to this far [m] from the file")
+    s.add_argument("--noise", type=float, default=2.0, help="pixel noise std [grey levels]")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--detector", choices=["opencv", "pupil"], default="opencv")
     s.add_argument("--json")
     s.set_defaults(func=cmd_perceive)
 

@@ -73,7 +73,7 @@ def tag_files(tag_id: int) -> tuple[Path, Path]:
     obj = folder / "quad.obj"
     if not obj.exists():
         _atomic_write(obj, lambda p: p.write_text(_OBJ))
-    png = folder / f"tag36h11_{tag_id:03d}.png"
+    png = folder / f"tag36h11_{tag_id:03d}_{_PX_PER_CELL}px.png"
     if not png.exists():
         img = cv2.cvtColor(tag_image(tag_id), cv2.COLOR_GRAY2BGR)
 

@@ -20,7 +20,7 @@ from rlgp_exec.errors import RlgpError
 from rlgp_exec.robot import RobotModel, load_robot
 from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import Box, cabinet_geometry, fixture_boxes, object_box, region_box
+from rlgp_exec.scene.geometry import TAG_LIFT, Box, cabinet_geometry, fixture_boxes, object_box, region_box
 from sim.tags import tag_files, tag_quad_size
 
 __all__ = ["CabinetBody", "World", "build_world", "matrix_to_pose"]
@@ -30,7 +30,6 @@ FloatArray = NDArray[np.float64]
 
 OBJECT_MASS = 0.2  # [kg]
 TAG_LINK = 0  # link index of a tagged object's tag quad
-TAG_LIFT = 0.0005  # [m] the quad floats this far above the top face (no z-fighting)
 DRAWER_MASS = 1.0  # [kg]
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
@@ -57,6 +57,8 @@ class RobotConfig:
     allowed_collisions: tuple[tuple[str, str], ...]
     floor_contact: tuple[str, ...]
     folder: Path
+    #: joint overrides for looking around (e.g. a raised lift)
+    lookout: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     def manipulator(self, name: str | None = None) -> Manipulator:
         """The named manipulator, or the first one."""
@@ -123,4 +125,5 @@ def load_robot_config(name: str) -> RobotConfig:
         allowed_collisions=tuple((a, b) for a, b in col.get("allowed", [])),
         floor_contact=tuple(col.get("floor_contact", ())),
         folder=folder,
+        lookout=MappingProxyType({k: float(v) for k, v in raw.get("lookout", {}).items()}),
     )

@@ -202,3 +202,15 @@ def pose_of(T: FloatArray) -> tuple[float, float, float, float]:
 
 
 __all__ += ["pose_matrix", "pose_of"]
+
+TAG_LIFT = 0.002  # [m] a tag quad floats this far above its object's top face (no z-fighting in renders)
+
+
+def T_object_tag(obj: SceneObject) -> FloatArray:
+    """T_object_tag (4, 4): a tag sits centred on the object's top face, its axes along the object's."""
+    T = np.eye(4)
+    T[2, 3] = obj.size[2] / 2.0 + TAG_LIFT
+    return T
+
+
+__all__ += ["TAG_LIFT", "T_object_tag"]

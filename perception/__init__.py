@@ -1,0 +1,31 @@
+"""Perception: AprilTag detection, PnP poses, camera models, object tracking."""
+
+from perception.camera import CAMERAS, CameraIntrinsics, PerceptionError, camera_for_robot
+from perception.detector import DETECTORS, DetectionResult, ImageStatus, TagDetection, TagDetector
+from perception.pipeline import Perception, PerceptionReport, SceneUpdate, scene_from_estimates
+from perception.pose import TagPose, estimate_tag_pose
+from perception.registry import TagMount, TagRegistry
+from perception.tracker import ObjectEstimate, ObjectTracker, Observation
+
+__all__ = [
+    "CAMERAS",
+    "DETECTORS",
+    "CameraIntrinsics",
+    "DetectionResult",
+    "ImageStatus",
+    "ObjectEstimate",
+    "ObjectTracker",
+    "Observation",
+    "Perception",
+    "PerceptionError",
+    "PerceptionReport",
+    "SceneUpdate",
+    "TagDetection",
+    "TagDetector",
+    "TagMount",
+    "TagPose",
+    "TagRegistry",
+    "camera_for_robot",
+    "estimate_tag_pose",
+    "scene_from_estimates",
+]

@@ -1,0 +1,94 @@
+"""Rendered camera images: what a robot's head camera sees in a PyBullet world.
+
+The image is rendered with exactly the pinhole model of :class:`perception.camera.CameraIntrinsics`
+(so a detector's PnP sees the geometry PyBullet drew), optionally degraded by Gaussian pixel noise,
+blur and a change of light direction, as a real camera sees it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+import pybullet as p
+
+from perception.camera import CameraIntrinsics, FloatArray
+from sim.world import World
+
+__all__ = ["ImageEffects", "SimCapture", "camera_pose", "render_camera"]
+
+_GL_FROM_OPTICAL = np.diag([1.0, -1.0, -1.0, 1.0])  # GL eye frame: x right, y up, looking along -z
+#: PyBullet's TinyRenderer draws the image shifted by this much [px] against an exact OpenGL viewport
+#: (measured: corners of rendered tags vs their projections, over random views; see tests/test_perception.py)
+TINY_RENDERER_SHIFT_PX = (1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ImageEffects:
+    """Degradations: pixel noise std [grey levels], Gaussian blur sigma [px], light direction (world)."""
+
+    noise_std: float = 0.0
+    blur_sigma: float = 0.0
+    light_direction: tuple[float, float, float] = (1.0, 0.6, 2.0)
+    seed: int = 0
+
+
+def camera_pose(world: World) -> FloatArray:
+    """T_world_camera (4, 4) of the robot's head camera (optical frame) at its current configuration."""
+    model = world.robot_model
+    return model.fk(world.robot.get_q(), model.config.frames["camera"])
+
+
+def render_camera(
+    world: World,
+    intrinsics: CameraIntrinsics,
+    T_world_camera: FloatArray | None = None,
+    effects: ImageEffects = ImageEffects(),
+) -> np.ndarray:
+    """An RGB image (H, W, 3) uint8 from ``T_world_camera`` (default: the robot's head camera)."""
+    T = camera_pose(world) if T_world_camera is None else np.asarray(T_world_camera, float)
+    view = np.linalg.inv(T @ _GL_FROM_OPTICAL)
+    du, dv = TINY_RENDERER_SHIFT_PX
+    render_model = replace(intrinsics, cx=intrinsics.cx - du, cy=intrinsics.cy - dv)
+    _, _, rgba, _, _ = p.getCameraImage(
+        intrinsics.width,
+        intrinsics.height,
+        view.T.reshape(-1).tolist(),
+        render_model.gl_projection(),
+        renderer=p.ER_TINY_RENDERER,
+        shadow=0,
+        lightDirection=list(effects.light_direction),
+        physicsClientId=world.client,
+    )
+    img = np.asarray(rgba, dtype=np.uint8).reshape(intrinsics.height, intrinsics.width, 4)[:, :, :3].copy()
+    if effects.blur_sigma > 0.0:
+        img = cv2.GaussianBlur(img, (0, 0), effects.blur_sigma)
+    if effects.noise_std > 0.0:
+        rng = np.random.default_rng(effects.seed)
+        noisy = img.astype(np.float32) + rng.normal(0.0, effects.noise_std, img.shape).astype(np.float32)
+        img = np.clip(noisy, 0, 255).astype(np.uint8)
+    return img
+
+
+class SimCapture:
+    """Take pictures in simulation: put the robot at ``q``, render its head camera, and return
+    (image, T_world_camera from FK, stamp [s]) — what a robot's camera driver and TF give."""
+
+    def __init__(
+        self,
+        world: World,
+        intrinsics: CameraIntrinsics,
+        effects: ImageEffects = ImageEffects(),
+        period: float = 1.0 / 30.0,
+    ) -> None:
+        self.world, self.intrinsics, self.effects, self.period = world, intrinsics, effects, period
+        self.stamp = 0.0
+        self.frames = 0
+
+    def __call__(self, q: FloatArray) -> tuple[np.ndarray, FloatArray, float]:
+        self.world.robot.set_q(q)
+        self.stamp += self.period
+        self.frames += 1
+        fx = replace(self.effects, seed=self.effects.seed + self.frames)
+        return render_camera(self.world, self.intrinsics, None, fx), camera_pose(self.world), self.stamp
