@@ -25,7 +25,6 @@ log = logging.getLogger("rlgp_exec")
 PENDING: dict[str, str] = {
     "plan": "the R-LGP and GNPP planners (issues 4 and 5)",
     "run": "the executive loop (issue 9)",
-    "sim-robot": "the simulated robot server (issue 7)",
     "daemon": "the on-robot daemon (issue 9)",
     "rg": "the reachability graph (issue 3)",
     "replay": "recordings (issue 9)",
@@ -70,10 +69,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from perception.bench import run_perception_bench
 
         result = run_perception_bench(seed=args.seed or 0)
+    elif task == "hal":
+        from rlgp_exec.hal.bench import run_hal_bench
+
+        result = run_hal_bench()
     else:
         print(
             f"rlgp-exec bench {task}: planner/reachability/HAL/executive benchmarks are not available in this "
-            "build (issues 3, 4, 5, 7, 9); available: timing, perception",
+            "build (issues 3, 4, 5, 9); available: timing, perception, hal",
             file=sys.stderr,
         )
         return 2
@@ -85,6 +88,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
         else:
             print(f"{k:40s} {v}")
     return 0
+
+
+# ---------------------------------------------------------------------------------- sim-robot
+def cmd_sim_robot(args: argparse.Namespace) -> int:
+    from sim.robot_server import main as server_main
+
+    argv = ["--robot", args.robot, "--transport", args.transport]
+    for flag, value in (("--scene", args.scene), ("--endpoint", args.endpoint), ("--namespace", args.namespace)):
+        if value:
+            argv += [flag, value]
+    return server_main(argv)
 
 
 # ---------------------------------------------------------------------------------- perceive
@@ -163,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--record")
     s.set_defaults(func=_pending("run"))
 
-    s = sub.add_parser("bench", help="benchmarks: timing, perception (planners, reachability, hal, executive later)")
+    s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability (planners and executive later)")
     s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
     s.add_argument("--planners")
     s.add_argument("--seeds", type=int, default=20)
@@ -188,7 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", choices=["hsr", "pr2"], required=True)
     s.add_argument("--transport", choices=["zenoh", "can"], required=True)
     s.add_argument("--scene")
-    s.set_defaults(func=_pending("sim-robot"))
+    s.add_argument("--endpoint", help="zenoh: the endpoint to listen on, e.g. tcp/127.0.0.1:7447")
+    s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
+    s.set_defaults(func=cmd_sim_robot)
 
     s = sub.add_parser("daemon", help="the on-robot execution daemon")
     s.add_argument("--robot", choices=["hsr", "pr2"], default="hsr")

@@ -1,0 +1,220 @@
+"""ROS 2 messages as CDR bytes without ROS (rosbags, Humble types): encode, and decode defensively.
+
+Decoders never raise on bad bytes: they return a :class:`Rejected` with the reason (payload too big,
+no CDR header, truncated, wrong message type, NaN, inconsistent lengths), so a receiver can count and
+log it and carry on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rlgp_exec.hal.types import JointSetpoint
+
+__all__ = [
+    "MAX_PAYLOAD",
+    "Rejected",
+    "decode",
+    "encode_bool",
+    "encode_float64",
+    "encode_joint_state",
+    "encode_odometry",
+    "encode_string",
+    "encode_trajectory",
+    "encode_twist",
+    "parse_joint_state",
+    "parse_odometry",
+    "parse_trajectory",
+    "parse_twist",
+]
+
+MAX_PAYLOAD = 64 * 1024  # [bytes] anything larger is not one of our messages
+_CDR_HEADERS = (b"\x00\x01\x00\x00", b"\x00\x00\x00\x00")  # CDR_LE, CDR_BE (options 0)
+
+
+@dataclass(frozen=True)
+class Rejected:
+    key: str  # short reason class, used as a counter key
+    reason: str
+
+    def __bool__(self) -> bool:
+        return False
+
+
+@lru_cache(maxsize=1)
+def _store() -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _t(name: str) -> Any:
+    return _store().types[name]
+
+
+def _ser(msg: Any, typename: str) -> bytes:
+    return bytes(_store().serialize_cdr(msg, typename))
+
+
+def _stamp(t: float) -> Any:
+    sec = math.floor(t)
+    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=round((t - sec) * 1e9) % 1_000_000_000)
+
+
+def _header(t: float, frame: str = "") -> Any:
+    return _t("std_msgs/msg/Header")(stamp=_stamp(t), frame_id=frame)
+
+
+# ---------------------------------------------------------------------- encoders
+def encode_joint_state(stamp: float, names: Sequence[str], q: ArrayLike, dq: ArrayLike) -> bytes:
+    msg = _t("sensor_msgs/msg/JointState")(
+        header=_header(stamp),
+        name=list(names),
+        position=np.asarray(q, dtype=np.float64),
+        velocity=np.asarray(dq, dtype=np.float64),
+        effort=np.zeros(0, dtype=np.float64),
+    )
+    return _ser(msg, "sensor_msgs/msg/JointState")
+
+
+def _vec3(x: float, y: float, z: float) -> Any:
+    return _t("geometry_msgs/msg/Vector3")(x=float(x), y=float(y), z=float(z))
+
+
+def _twist(vx: float, vy: float, wz: float) -> Any:
+    return _t("geometry_msgs/msg/Twist")(linear=_vec3(vx, vy, 0.0), angular=_vec3(0.0, 0.0, wz))
+
+
+def encode_odometry(stamp: float, x: float, y: float, yaw: float, vx: float, vy: float, wz: float) -> bytes:
+    P, Q = _t("geometry_msgs/msg/Point"), _t("geometry_msgs/msg/Quaternion")
+    pose = _t("geometry_msgs/msg/Pose")(
+        position=P(x=float(x), y=float(y), z=0.0),
+        orientation=Q(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+    )
+    msg = _t("nav_msgs/msg/Odometry")(
+        header=_header(stamp, "odom"),
+        child_frame_id="base_footprint",
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=pose, covariance=np.zeros(36)),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(twist=_twist(vx, vy, wz), covariance=np.zeros(36)),
+    )
+    return _ser(msg, "nav_msgs/msg/Odometry")
+
+
+def encode_trajectory(sp: JointSetpoint, time_from_start: float, stamp: float = 0.0) -> bytes:
+    sec = math.floor(time_from_start)
+    pt = _t("trajectory_msgs/msg/JointTrajectoryPoint")(
+        positions=np.asarray(sp.q, dtype=np.float64),
+        velocities=np.asarray(sp.dq, dtype=np.float64),
+        accelerations=np.zeros(0),
+        effort=np.zeros(0),
+        time_from_start=_t("builtin_interfaces/msg/Duration")(sec=int(sec), nanosec=int((time_from_start - sec) * 1e9)),
+    )
+    msg = _t("trajectory_msgs/msg/JointTrajectory")(header=_header(stamp), joint_names=list(sp.names), points=[pt])
+    return _ser(msg, "trajectory_msgs/msg/JointTrajectory")
+
+
+def encode_twist(vx: float, vy: float, wz: float) -> bytes:
+    return _ser(_twist(vx, vy, wz), "geometry_msgs/msg/Twist")
+
+
+def encode_bool(value: bool) -> bytes:
+    return _ser(_t("std_msgs/msg/Bool")(data=bool(value)), "std_msgs/msg/Bool")
+
+
+def encode_float64(value: float) -> bytes:
+    return _ser(_t("std_msgs/msg/Float64")(data=float(value)), "std_msgs/msg/Float64")
+
+
+def encode_string(value: str) -> bytes:
+    return _ser(_t("std_msgs/msg/String")(data=value), "std_msgs/msg/String")
+
+
+# ---------------------------------------------------------------------- decoders
+def decode(payload: bytes, typename: str) -> Any:
+    """The message in ``payload``, or :class:`Rejected`. Never raises on bad bytes."""
+    n = len(payload)
+    if n > MAX_PAYLOAD:
+        return Rejected("too_large", f"{typename}: payload of {n} bytes > {MAX_PAYLOAD}")
+    if n < 4 or payload[:4] not in _CDR_HEADERS:
+        return Rejected("no_cdr_header", f"{typename}: no CDR encapsulation header in {payload[:4]!r} ({n} bytes)")
+    try:
+        return _store().deserialize_cdr(payload, typename)
+    except Exception as e:  # rosbags raises SerdeError, but corrupt bytes can surface as anything
+        return Rejected("malformed", f"{typename}: cannot decode {n} bytes: {type(e).__name__}: {e}")
+
+
+def _finite(a: Any) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(a, dtype=float))))
+
+
+def parse_joint_state(payload: bytes) -> tuple[float, tuple[str, ...], np.ndarray, np.ndarray] | Rejected:
+    """(stamp [s], names, q, dq) from a sensor_msgs/JointState payload."""
+    m = decode(payload, "sensor_msgs/msg/JointState")
+    if isinstance(m, Rejected):
+        return m
+    names = tuple(m.name)
+    q, dq = np.asarray(m.position, dtype=float), np.asarray(m.velocity, dtype=float)
+    if len(q) != len(names) or len(dq) not in (0, len(names)):
+        return Rejected("inconsistent", f"JointState: {len(names)} names, {len(q)} positions, {len(dq)} velocities")
+    if len(set(names)) != len(names):
+        return Rejected("inconsistent", f"JointState: duplicate names {list(names)}")
+    if not (_finite(q) and _finite(dq)):
+        return Rejected("non_finite", "JointState: NaN/inf position or velocity")
+    stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+    return stamp, names, q, (dq if len(dq) else np.zeros(len(names)))
+
+
+def parse_odometry(payload: bytes) -> tuple[float, tuple[float, float, float], tuple[float, float, float]] | Rejected:
+    """(stamp, (x, y, yaw), (vx, vy, wz) base frame) from a nav_msgs/Odometry payload."""
+    m = decode(payload, "nav_msgs/msg/Odometry")
+    if isinstance(m, Rejected):
+        return m
+    p, o, t = m.pose.pose.position, m.pose.pose.orientation, m.twist.twist
+    vals = [p.x, p.y, o.x, o.y, o.z, o.w, t.linear.x, t.linear.y, t.angular.z]
+    if not _finite(vals):
+        return Rejected("non_finite", "Odometry: NaN/inf pose or twist")
+    norm = math.sqrt(o.x**2 + o.y**2 + o.z**2 + o.w**2)
+    if abs(norm - 1.0) > 1e-3:
+        return Rejected("invalid", f"Odometry: orientation is not a unit quaternion (|q| = {norm:.4f})")
+    yaw = math.atan2(2 * (o.w * o.z + o.x * o.y), 1 - 2 * (o.y**2 + o.z**2))
+    stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+    return stamp, (p.x, p.y, yaw), (t.linear.x, t.linear.y, t.angular.z)
+
+
+def parse_trajectory(payload: bytes) -> JointSetpoint | Rejected:
+    """The single point of a streamed trajectory_msgs/JointTrajectory as a setpoint."""
+    m = decode(payload, "trajectory_msgs/msg/JointTrajectory")
+    if isinstance(m, Rejected):
+        return m
+    if len(m.points) != 1:
+        return Rejected("inconsistent", f"JointTrajectory: expected exactly 1 point (streaming), got {len(m.points)}")
+    names, pt = tuple(m.joint_names), m.points[0]
+    q, dq = np.asarray(pt.positions, dtype=float), np.asarray(pt.velocities, dtype=float)
+    if not names or len(set(names)) != len(names):
+        return Rejected("inconsistent", f"JointTrajectory: empty or duplicate joint names {list(names)}")
+    if len(q) != len(names) or len(dq) not in (0, len(names)):
+        return Rejected(
+            "inconsistent", f"JointTrajectory: {len(names)} names, {len(q)} positions, {len(dq)} velocities"
+        )
+    if not (_finite(q) and _finite(dq)):
+        return Rejected("non_finite", f"JointTrajectory: NaN/inf in positions/velocities for {list(names)}")
+    return JointSetpoint(names, q, dq if len(dq) else None)
+
+
+def parse_twist(payload: bytes) -> tuple[float, float, float] | Rejected:
+    m = decode(payload, "geometry_msgs/msg/Twist")
+    if isinstance(m, Rejected):
+        return m
+    v = (m.linear.x, m.linear.y, m.angular.z)
+    if not _finite([*v, m.linear.z, m.angular.x, m.angular.y]):
+        return Rejected("non_finite", "Twist: NaN/inf component")
+    if any(abs(c) > 1e-9 for c in (m.linear.z, m.angular.x, m.angular.y)):
+        return Rejected("invalid", "Twist: a planar base takes linear.x, linear.y and angular.z only")
+    return v

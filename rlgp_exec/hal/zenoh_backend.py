@@ -1,0 +1,215 @@
+"""The ``zenoh`` backend: the robot's ROS 2 topics through the Zenoh-ROS 2 bridge (or the simulated robot
+server), CDR payloads, peer session connecting to one endpoint. Keys: ``robots/<robot>/zenoh_keys.toml``.
+
+State arrives on three keys (joint_states, odom, runstop) plus faults; every payload is decoded
+defensively and rejected (counted in :attr:`rejects`, logged) when malformed, of the wrong type, non-finite
+or naming joints the robot does not have. The heartbeat is the robot's liveliness token together with
+fresh joint states and odometry (wall-clock age below ``heartbeat_timeout``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from rlgp_exec.hal import ros_codec as rc
+from rlgp_exec.hal.interface import RobotInterface
+from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, RobotState
+from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
+from rlgp_exec.robot import load_robot
+
+__all__ = ["ZenohBackend"]
+
+log = logging.getLogger(__name__)
+
+
+class ZenohBackend(RobotInterface):
+    backend = "zenoh"
+
+    def __init__(
+        self,
+        robot: str = "hsr",
+        endpoint: str = DEFAULT_ENDPOINT,
+        namespace: str = "",
+        heartbeat_timeout: float = 0.25,
+        control_period: float = 0.01,
+    ) -> None:
+        super().__init__(load_robot(robot), heartbeat_timeout)
+        self.keys = load_key_map(robot, namespace)
+        self.endpoint = endpoint
+        self.control_period = float(control_period)
+        self._lock = threading.Lock()
+        self._session: Any = None
+        self._decls: list[Any] = []
+        self._pubs: dict[str, Any] = {}
+        self._token: Any = None
+        self._robot_alive = False
+        self._q = dict.fromkeys(self.joint_names, np.nan)
+        self._dq = dict.fromkeys(self.joint_names, 0.0)
+        self._js_stamp = 0.0
+        self._js_wall = -np.inf
+        self._odom: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+        self._odom_wall = -np.inf
+        self._runstop = False
+        self._faults: tuple[str, ...] = ()
+        self.received = 0  # accepted state messages
+
+    # ------------------------------------------------------------------ lifecycle hooks
+    def _on_configure(self) -> None:
+        import zenoh
+
+        s = zenoh.open(session_config(connect=self.endpoint))
+        self._session = s
+        k = self.keys
+        self._decls += [
+            s.declare_subscriber(k["joint_states"].key, self._on_joint_states),
+            s.declare_subscriber(k["odom"].key, self._on_odom),
+            s.declare_subscriber(k["runstop"].key, self._on_runstop),
+            s.declare_subscriber(k["faults"].key, self._on_faults),
+            s.liveliness().declare_subscriber(k.alive_robot, self._on_alive, history=True),
+        ]
+        for t in k.topics.values():
+            if t.direction == "command":
+                self._pubs[t.name] = s.declare_publisher(t.key)
+        self._token = s.liveliness().declare_token(k.alive_executive)
+        log.info("zenoh: connected to %s (namespace %r)", self.endpoint, k.namespace)
+
+    def _on_shutdown(self) -> None:
+        if self._session is None:
+            return
+        try:
+            if self._token is not None:
+                self._token.undeclare()
+            for d in self._decls:
+                d.undeclare()
+            for p in self._pubs.values():
+                p.undeclare()
+        except Exception as e:  # the session may already be broken; closing is what matters
+            log.debug("zenoh: undeclare during shutdown failed: %s", e)
+        self._session.close()
+        self._session = None
+
+    def wait_for_robot(self, timeout: float = 10.0) -> bool:
+        """Block until the heartbeat is ok (robot present, fresh state) or ``timeout`` [s] passes."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.heartbeat_ok():
+                return True
+            time.sleep(0.01)
+        return False
+
+    # ------------------------------------------------------------------ incoming
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        alive = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            self._robot_alive = alive
+        log.log(logging.INFO if alive else logging.WARNING, "zenoh: robot %s", "present" if alive else "gone")
+
+    def _on_joint_states(self, sample: Any) -> None:
+        r = rc.parse_joint_state(sample.payload.to_bytes())
+        if isinstance(r, rc.Rejected):
+            self.rejects.reject(r.key, r.reason)
+            return
+        stamp, names, q, dq = r
+        unknown = [n for n in names if n not in self._q]
+        if unknown:
+            self.rejects.reject(
+                "unknown_joint", f"JointState names unknown joint(s) {unknown}; valid: {list(self.joint_names)}"
+            )
+            return
+        with self._lock:
+            for n, a, b in zip(names, q, dq, strict=True):
+                self._q[n], self._dq[n] = float(a), float(b)
+            self._js_stamp = stamp
+            self._js_wall = time.monotonic()
+            self.received += 1
+
+    def _on_odom(self, sample: Any) -> None:
+        r = rc.parse_odometry(sample.payload.to_bytes())
+        if isinstance(r, rc.Rejected):
+            self.rejects.reject(r.key, r.reason)
+            return
+        with self._lock:
+            self._odom = (r[1], r[2])
+            self._odom_wall = time.monotonic()
+
+    def _on_runstop(self, sample: Any) -> None:
+        m = rc.decode(sample.payload.to_bytes(), "std_msgs/msg/Bool")
+        if isinstance(m, rc.Rejected):
+            self.rejects.reject(m.key, m.reason)
+            return
+        with self._lock:
+            self._runstop = bool(m.data)
+
+    def _on_faults(self, sample: Any) -> None:
+        m = rc.decode(sample.payload.to_bytes(), "std_msgs/msg/String")
+        if isinstance(m, rc.Rejected):
+            self.rejects.reject(m.key, m.reason)
+            return
+        with self._lock:
+            self._faults = tuple(f for f in m.data.split("\n") if f)
+
+    def heartbeat_ok(self) -> bool:
+        now = time.monotonic()
+        with self._lock:
+            complete = not any(np.isnan(v) for v in self._q.values())
+            return (
+                self._robot_alive
+                and complete
+                and now - self._js_wall <= self.heartbeat_timeout
+                and now - self._odom_wall <= self.heartbeat_timeout
+            )
+
+    def _latest_state(self) -> RobotState | None:
+        with self._lock:
+            if self._odom is None or any(np.isnan(v) for v in self._q.values()):
+                return None
+            q = [self._q[n] for n in self.joint_names]
+            return RobotState(
+                stamp=self._js_stamp,
+                names=self.joint_names,
+                q=q,
+                dq=[self._dq[n] for n in self.joint_names],
+                base=self._odom[0],
+                base_velocity=self._odom[1],
+                gripper=self._q[self.limits.gripper_joint],
+                estopped=self._runstop,
+                faults=self._faults,
+            )
+
+    # ------------------------------------------------------------------ outgoing
+    def _put(self, topic: str, payload: bytes) -> None:
+        pub = self._pubs.get(topic)
+        if pub is None:
+            raise HalError(f"zenoh: not configured (no publisher for {topic!r})")
+        pub.put(payload)
+
+    def _send_setpoint(self, sp: JointSetpoint) -> None:
+        index = {n: i for i, n in enumerate(sp.names)}
+        for t in self.keys.joint_topics():
+            mine = [n for n in t.joints if n in index]
+            if mine:
+                idx = [index[n] for n in mine]
+                sub = JointSetpoint(tuple(mine), sp.q[idx], sp.dq[idx])
+                self._put(t.name, rc.encode_trajectory(sub, self.control_period))
+
+    def _send_base_velocity(self, vx: float, vy: float, wz: float) -> None:
+        self._put("cmd_vel", rc.encode_twist(vx, vy, wz))
+
+    def _send_gripper(self, cmd: GripperCommand) -> None:
+        if cmd.action is GripperAction.GRASP:
+            self._put("grasp", rc.encode_float64(cmd.force))
+            return
+        m = self.model.manipulator()
+        target = m.open if cmd.action is GripperAction.OPEN else m.closed
+        sp = JointSetpoint((self.limits.gripper_joint,), [target])
+        self._put("gripper", rc.encode_trajectory(sp, 1.0))
+
+    def _send_estop(self, engaged: bool) -> None:
+        self._put("estop", rc.encode_bool(engaged))

@@ -1,0 +1,356 @@
+"""The simulated robot server: PyBullet physics (DIRECT) behind the robot's own wire interfaces.
+
+    python -m sim.robot_server --robot hsr --transport zenoh [--scene PATH] [--endpoint tcp/127.0.0.1:7447]
+    python -m sim.robot_server --robot hsr --transport can --can-interface socketcan --can-channel vcan0
+
+Zenoh: the keys and CDR payloads of ``robots/<robot>/zenoh_keys.toml`` (what the Zenoh-ROS 2 bridge
+exposes on the real HSR), joint states / odometry / run-stop at ``--rate`` Hz (100 by default), a
+liveliness token for presence and a ``rlgp/stats`` queryable with the reject counters. The server listens
+on ``--endpoint``; clients connect to it. CAN: the CANopen node set of ``robots/<robot>/can_nodes.toml``
+(see ``sim/robot_server_can.py``) on a python-can bus.
+
+Every command is decoded defensively and checked against the robot's limits again here; a bad one is
+rejected, counted, logged, and moves nothing. The physics runs in real time (stepped every period).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.hal import ros_codec as rc
+from rlgp_exec.hal.sim_physics import SimRobot
+from rlgp_exec.hal.types import GripperCommand, JointSetpoint
+from rlgp_exec.hal.validate import CommandLimits, RejectCounter
+from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
+
+__all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
+
+log = logging.getLogger("sim.robot_server")
+
+
+class RealTimeLoop:
+    """Call ``tick()`` every ``period`` s on absolute deadlines (no drift); records the period errors."""
+
+    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop") -> None:
+        self.period = period
+        self.tick = tick
+        self.name = name
+        self.errors_ms: list[float] = []  # |actual period - nominal| per cycle, last 10 000
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self.run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def run(self) -> None:
+        nxt = time.perf_counter()
+        last = nxt
+        while not self._stop.is_set():
+            try:
+                self.tick()
+            except Exception:  # a bug in one tick must not kill the robot's loop silently
+                log.exception("%s: tick failed", self.name)
+            nxt += self.period
+            now = time.perf_counter()
+            if now - nxt > 5 * self.period:  # fell far behind (machine stalled): resynchronise
+                nxt = now
+            self._stop.wait(max(0.0, nxt - now))
+            t = time.perf_counter()
+            self.errors_ms.append(abs((t - last) - self.period) * 1e3)
+            if len(self.errors_ms) > 10_000:
+                del self.errors_ms[:5_000]
+            last = t
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+    def p99_ms(self) -> float:
+        return float(np.percentile(self.errors_ms, 99)) if self.errors_ms else float("nan")
+
+
+class ZenohRobotServer:
+    """The robot side of the zenoh backend, driving a :class:`SimRobot`."""
+
+    def __init__(
+        self, sim: SimRobot, endpoint: str = DEFAULT_ENDPOINT, namespace: str = "", rate_hz: float = 100.0
+    ) -> None:
+        self.sim = sim
+        self.keys = load_key_map(sim.model.name, namespace)
+        self.endpoint = endpoint
+        self.limits = CommandLimits(sim.model)
+        self.period = 1.0 / rate_hz
+        self.rejects = RejectCounter("robot_server[zenoh]")
+        self.accepted: Counter[str] = Counter()
+        self.lock = threading.Lock()
+        self.loop = RealTimeLoop(self.period, self.tick, "zenoh-robot")
+        self._session: Any = None
+        self._pubs: dict[str, Any] = {}
+        self._decls: list[Any] = []
+        self._executive_seen = False
+        self._ticks = 0
+
+    # ------------------------------------------------------------------ set-up
+    def start(self) -> None:
+        import zenoh
+
+        s = zenoh.open(session_config(listen=self.endpoint))
+        self._session = s
+        k = self.keys
+        for name in ("joint_states", "odom", "runstop", "faults"):
+            self._pubs[name] = s.declare_publisher(k[name].key)
+        handlers: dict[str, Callable[[bytes, str], None]] = {
+            "cmd_vel": self._cmd_vel,
+            "grasp": self._grasp,
+            "estop": self._estop,
+            "gripper": self._gripper,
+        }
+        for t in k.joint_topics():
+            handlers[t.name] = self._joint_trajectory
+        for name, fn in handlers.items():
+            self._decls.append(s.declare_subscriber(k[name].key, self._guard(name, fn)))
+        self._decls.append(s.liveliness().declare_subscriber(k.alive_executive, self._on_executive, history=True))
+        self._decls.append(s.declare_queryable(k.stats, self._on_stats))
+        self._token = s.liveliness().declare_token(k.alive_robot)
+        self.loop.start()
+        log.info(
+            "zenoh robot server (%s) listening on %s, namespace %r", self.sim.model.name, self.endpoint, k.namespace
+        )
+
+    def stop(self) -> None:
+        self.loop.stop()
+        if self._session is not None:
+            try:
+                self._token.undeclare()
+            except Exception as e:
+                log.debug("undeclare failed: %s", e)
+            self._session.close()
+            self._session = None
+
+    # ------------------------------------------------------------------ loop
+    def tick(self) -> None:
+        with self.lock:
+            self.sim.step(self.period)
+            st = self.sim.state()
+        self._ticks += 1
+        self._pubs["joint_states"].put(rc.encode_joint_state(st.stamp, st.names, st.q, st.dq))
+        self._pubs["odom"].put(rc.encode_odometry(st.stamp, *st.base, *st.base_velocity))
+        self._pubs["runstop"].put(rc.encode_bool(st.estopped))
+        if self._ticks % 10 == 0:
+            self._pubs["faults"].put(rc.encode_string("\n".join(st.faults)))
+
+    # ------------------------------------------------------------------ commands
+    def _guard(self, topic: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:
+        def cb(sample: Any) -> None:
+            try:
+                fn(sample.payload.to_bytes(), topic)
+            except Exception as e:  # never let a payload kill the server
+                self.rejects.reject("internal", f"{topic}: {type(e).__name__}: {e}")
+                log.exception("robot_server: handler for %s failed", topic)
+
+        return cb
+
+    def _ok(self, topic: str) -> None:
+        self.accepted[topic] += 1
+
+    def _joint_trajectory(self, payload: bytes, topic: str) -> None:
+        sp = rc.parse_trajectory(payload)
+        if isinstance(sp, rc.Rejected):
+            self.rejects.reject(sp.key, f"{topic}: {sp.reason}")
+            return
+        allowed = self.keys[topic].joints
+        wrong = [n for n in sp.names if n not in allowed]
+        if wrong:
+            self.rejects.reject(
+                "unknown_joint", f"{topic}: joint(s) {wrong} not on this controller; valid: {list(allowed)}"
+            )
+            return
+        reason = self.limits.check_setpoint(sp)
+        if reason:
+            self.rejects.reject("limits", f"{topic}: {reason}")
+            return
+        with self.lock:
+            if self.sim.set_joint_targets(sp):
+                self._ok(topic)
+            else:
+                self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
+
+    def _gripper(self, payload: bytes, topic: str) -> None:
+        sp = rc.parse_trajectory(payload)
+        if isinstance(sp, rc.Rejected):
+            self.rejects.reject(sp.key, f"{topic}: {sp.reason}")
+            return
+        g = self.limits.gripper_joint
+        if sp.names != (g,):
+            self.rejects.reject("unknown_joint", f"{topic}: expected exactly [{g!r}], got {list(sp.names)}")
+            return
+        i = self.limits.names.index(g)
+        if not (self.limits.lower[i] <= sp.q[0] <= self.limits.upper[i]):
+            self.rejects.reject(
+                "limits", f"{topic}: {g}={sp.q[0]} not in [{self.limits.lower[i]}, {self.limits.upper[i]}]"
+            )
+            return
+        with self.lock:
+            if self.sim.gripper_to(float(sp.q[0])):
+                self._ok(topic)
+            else:
+                self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
+
+    def _grasp(self, payload: bytes, topic: str) -> None:
+        m = rc.decode(payload, "std_msgs/msg/Float64")
+        if isinstance(m, rc.Rejected):
+            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+            return
+        reason = self.limits.check_grasp_force(m.data)
+        if reason:
+            self.rejects.reject("limits", f"{topic}: {reason}")
+            return
+        with self.lock:
+            if self.sim.gripper(GripperCommand.grasp(float(m.data))):
+                self._ok(topic)
+            else:
+                self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
+
+    def _cmd_vel(self, payload: bytes, topic: str) -> None:
+        v = rc.parse_twist(payload)
+        if isinstance(v, rc.Rejected):
+            self.rejects.reject(v.key, f"{topic}: {v.reason}")
+            return
+        reason = self.limits.check_base_velocity(*v)
+        if reason:
+            self.rejects.reject("limits", f"{topic}: {reason}")
+            return
+        with self.lock:
+            if self.sim.set_base_velocity(*v):
+                self._ok(topic)
+            else:
+                self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
+
+    def _estop(self, payload: bytes, topic: str) -> None:
+        m = rc.decode(payload, "std_msgs/msg/Bool")
+        if isinstance(m, rc.Rejected):
+            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+            return
+        with self.lock:
+            self.sim.estop(bool(m.data))
+        self._ok(topic)
+        log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
+
+    def _on_executive(self, sample: Any) -> None:
+        import zenoh
+
+        fault = "executive lost: holding position"
+        with self.lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._executive_seen = True
+                if fault in self.sim.faults:
+                    self.sim.faults.remove(fault)
+                log.info("robot_server: executive present")
+            elif self._executive_seen:
+                st = self.sim.state()
+                self.sim.set_joint_targets(
+                    JointSetpoint(self.limits.setpoint_names, st.positions(self.limits.setpoint_names))
+                )
+                self.sim.set_base_velocity(0.0, 0.0, 0.0)
+                if fault not in self.sim.faults:
+                    self.sim.faults.append(fault)
+                log.warning("robot_server: %s", fault)
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "rejected": self.rejects.counts(),
+            "rejected_total": self.rejects.total,
+            "accepted": dict(self.accepted),
+            "ticks": self._ticks,
+            "sim_time": self.sim.time,
+            "loop_period_err_ms_p99": self.loop.p99_ms(),
+        }
+
+    def _on_stats(self, query: Any) -> None:
+        query.reply(self.keys.stats, json.dumps(self.stats()).encode())
+
+
+def build_sim(robot: str, scene_path: str | None) -> SimRobot:
+    scene = None
+    if scene_path:
+        from rlgp_exec.scene import load_scene
+
+        scene = load_scene(scene_path)
+        if scene.robot.name != robot:
+            raise RlgpError(f"--scene {scene_path} is for robot {scene.robot.name!r}, not --robot {robot!r}")
+    return SimRobot(robot, scene)
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m sim.robot_server", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robot", choices=["hsr", "pr2"], required=True)
+    ap.add_argument("--transport", choices=["zenoh", "can"], required=True)
+    ap.add_argument("--scene", help="a scene TOML (default: the robot alone on a floor)")
+    ap.add_argument("--endpoint", default=DEFAULT_ENDPOINT, help="zenoh: endpoint to listen on")
+    ap.add_argument("--namespace", default="", help="zenoh: key prefix (the bridge's namespace)")
+    ap.add_argument("--can-interface", default="socketcan", help="can: python-can interface (socketcan, udp_multicast)")
+    ap.add_argument("--can-channel", default="vcan0", help="can: python-can channel")
+    ap.add_argument("--rate", type=float, default=100.0, help="state publishing / physics rate [Hz]")
+    ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until killed)")
+    ap.add_argument("-v", "--verbose", action="count", default=0)
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the server until SIGINT/SIGTERM (or --duration). Exit 0 on a clean stop, 2 on bad input."""
+    args = _parser().parse_args(None if argv is None else list(argv))
+    if not logging.getLogger().handlers:
+        level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if args.robot != "hsr":
+        print(
+            f"sim.robot_server: no driver maps for robot {args.robot!r} yet (robots/{args.robot}/zenoh_keys.toml, "
+            "can_nodes.toml); valid: hsr",
+            file=sys.stderr,
+        )
+        return 2
+    if not args.rate > 0:
+        print(f"sim.robot_server: --rate must be > 0, got {args.rate}", file=sys.stderr)
+        return 2
+    try:
+        sim = build_sim(args.robot, args.scene)
+        server: Any
+        if args.transport == "zenoh":
+            server = ZenohRobotServer(sim, args.endpoint, args.namespace, args.rate)
+        else:
+            from sim.robot_server_can import CanRobotServer, open_bus
+
+            server = CanRobotServer(sim, open_bus(args.can_interface, args.can_channel), rate_hz=args.rate)
+        server.start()
+    except RlgpError as e:
+        print(f"sim.robot_server: error: {e}", file=sys.stderr)
+        return 2
+    done = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: done.set())
+    print(f"robot_server ready: {args.robot} over {args.transport}", flush=True)
+    try:
+        done.wait(args.duration if args.duration > 0 else None)
+    finally:
+        server.stop()
+        sim.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
