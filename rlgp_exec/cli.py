@@ -26,7 +26,6 @@ PENDING: dict[str, str] = {
     "plan": "the R-LGP and GNPP planners (issues 4 and 5)",
     "run": "the executive loop (issue 9)",
     "daemon": "the on-robot daemon (issue 9)",
-    "rg": "the reachability graph (issue 3)",
     "replay": "recordings (issue 9)",
 }
 
@@ -69,6 +68,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from perception.bench import run_perception_bench
 
         result = run_perception_bench(seed=args.seed or 0)
+    elif task == "reachability":
+        from rlgp_exec.reach.bench import run_reachability_bench
+
+        if not args.scene_file:
+            raise RlgpError("bench reachability needs a scene: rlgp-exec bench reachability SCENE [--samples N]")
+        result = run_reachability_bench(
+            args.scene_file, samples=args.samples, seed=args.seed or 0, workers=args.workers
+        )
     elif task == "hal":
         from rlgp_exec.hal.bench import run_hal_bench
 
@@ -76,7 +83,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     else:
         print(
             f"rlgp-exec bench {task}: planner/reachability/HAL/executive benchmarks are not available in this "
-            "build (issues 3, 4, 5, 9); available: timing, perception, hal",
+            "build (issues 4, 5, 9); available: timing, perception, hal, reachability",
             file=sys.stderr,
         )
         return 2
@@ -99,6 +106,56 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
         if value:
             argv += [flag, value]
     return server_main(argv)
+
+
+# ---------------------------------------------------------------------------------- rg
+def cmd_rg(args: argparse.Namespace) -> int:
+    import copy
+
+    import numpy as np
+
+    from rlgp_exec.reach import (
+        GraphSnapshot,
+        ReachabilityPlanner,
+        ReachIK,
+        RGParams,
+        WorldChecker,
+        draw_graph_png,
+        load_or_build,
+        nominal_q,
+    )
+    from rlgp_exec.robot import load_robot
+    from rlgp_exec.scene import load_scene
+
+    scene = load_scene(args.scene)
+    model = load_robot(scene.robot.name)
+    graph, stats = load_or_build(scene, params=RGParams(samples=args.samples))
+    print(
+        f"{scene.name}: {graph.G.number_of_nodes()} nodes, {graph.G.number_of_edges()} edges "
+        f"({'loaded from cache' if stats.from_cache else f'built in {stats.build_time_s:.2f} s'})"
+    )
+    before, before_graph = GraphSnapshot(graph), copy.deepcopy(graph)
+    checker = WorldChecker(scene, model.manipulator().group)
+    planner = ReachabilityPlanner(graph, ReachIK(model, scene, nominal_q(model, scene)), checker, rng_seed=1)
+    rng = np.random.default_rng(1)
+    lo, hi = graph.X[graph.alive].min(axis=0), graph.X[graph.alive].max(axis=0)
+    shown, ok = None, 0
+    for _ in range(args.queries):
+        res = planner.query(rng.uniform(lo, hi), rng.uniform(lo, hi))
+        ok += res.ok
+        if res.ok and (shown is None or len(res.path) > len(shown)):
+            shown = res.path
+    path_x = None
+    if shown is not None:
+        tool = model.manipulator().tool_frame
+        path_x = np.array([model.fk(q, tool)[:3, 3] for q in shown])
+    print(
+        f"{args.queries} random queries: {ok} answered; graph now {graph.G.number_of_nodes()} nodes; {planner.counters}"
+    )
+    if args.png:
+        print(f"wrote {draw_graph_png(graph, scene, args.png, before, path_x, before_graph)}")
+    checker.close()
+    return 0
 
 
 # ---------------------------------------------------------------------------------- perceive
@@ -179,10 +236,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability (planners and executive later)")
     s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
+    s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability`")
+    s.add_argument("--samples", type=int, default=200, help="reachability graph nodes")
     s.add_argument("--planners")
     s.add_argument("--seeds", type=int, default=20)
     s.add_argument("--seed", type=int)
-    s.add_argument("--workers", type=int, default=1)
+    s.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     s.add_argument("--json")
     s.set_defaults(func=cmd_bench)
 
@@ -213,8 +272,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("rg", help="build/draw a scene's reachability graph")
     s.add_argument("scene")
-    s.add_argument("--png")
-    s.set_defaults(func=_pending("rg"))
+    s.add_argument("--png", help="draw the graph before and after the queries (top and side views)")
+    s.add_argument("--samples", type=int, default=200)
+    s.add_argument("--queries", type=int, default=20, help="random task-space queries to run")
+    s.set_defaults(func=cmd_rg)
 
     s = sub.add_parser("replay", help="replay an MCAP recording into PyBullet")
     s.add_argument("file")

@@ -1,0 +1,190 @@
+"""Node validation (R-LGP Eq. 2): whole-body IK for an end-effector position, as one CasADi NLP.
+
+Variables are the planar base and the manipulator's joints, z = [x, y, yaw, q_arm] (Eq. 1); every
+other joint stays at the nominal configuration. The NLP
+
+    min_z  |f_kin(z) - x0|^2 + w_reg |q_arm - q_arm_ref|^2
+    s.t.   joint limits;  base footprint clear of every fixture footprint (smooth signed distance)
+
+is solved by IPOPT from a warm start (a neighbouring node's configuration, or the base placed so that
+the arm's home reach lands on x0). The precondition g_prec (Eq. 2) is checked first: a target inside a
+fixture is rejected without solving. The solution is then collision-checked in PyBullet (the whole
+robot against the fixtures and itself); only then is it a node n(x, q, c).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import fixture_boxes
+
+__all__ = ["IKResult", "ReachIK", "arm_spheres", "base_circles"]
+
+log = logging.getLogger(__name__)
+POS_TOL = 2e-3  # [m] a node's q must put the tool within this of x0
+W_REG = 1e-4  # weight of the arm posture regulariser (small: it must not pull the tool off x0)
+
+
+@dataclass(frozen=True)
+class IKResult:
+    ok: bool
+    q: FloatArray  # (nq,) the whole configuration
+    cost: float  # the NLP's objective at the solution (c of n(x, q, c))
+    err: float  # |f_kin(q) - x0| [m]
+    reason: str
+
+
+def base_circles(model: RobotModel) -> list[tuple[float, float, float]]:
+    """(x, y, r) circles [m] in the base frame covering the base footprint: one for a round base,
+    four (one per quadrant, each circumscribing it) for a rectangular one."""
+    b = model.config.base
+    if b.footprint_radius is not None:
+        return [(0.0, 0.0, float(b.footprint_radius))]
+    hx, hy = b.footprint_half_extents  # type: ignore[misc]
+    r = math.hypot(hx / 2, hy / 2)
+    return [(sx * hx / 2, sy * hy / 2, r) for sx in (-1, 1) for sy in (-1, 1)]
+
+
+def arm_spheres(model: RobotModel, manipulator: str | None = None, radius: float = 0.07) -> list[tuple[str, float]]:
+    """(frame, radius [m]) spheres along a manipulator: its joints from the second on, the palm and the tool."""
+    m = model.manipulator(manipulator)
+    joints = [model.joint_names[i] for i in model.group(m.group)][1:]
+    return [(j, radius) for j in joints] + [(m.palm_frame, radius), (m.tool_frame, 0.5 * radius)]
+
+
+def box_sdf(p_local: ca.SX, half: np.ndarray) -> ca.SX:
+    """Smooth signed distance [m] from a point (in the box frame) to a box of half extents ``half``:
+    the exact distance outside (up to 1e-4 m of smoothing), negative and ~ -depth inside."""
+    d = [ca.sqrt(p_local[i] ** 2 + 1e-9) - float(half[i]) for i in range(3)]
+    outside = ca.sqrt(sum(_smooth_pos(di) ** 2 for di in d) + 1e-8)
+    inside = -_smooth_pos(-ca.fmax(ca.fmax(d[0], d[1]), d[2]))
+    return outside + inside
+
+
+def _smooth_pos(a: ca.SX, eps: float = 1e-6) -> ca.SX:
+    return 0.5 * (a + ca.sqrt(a * a + eps))
+
+
+class ReachIK:
+    """Position IK over the base and one manipulator, with base-vs-fixture clearance constraints."""
+
+    def __init__(
+        self,
+        model: RobotModel,
+        scene: Scene,
+        q_nominal: FloatArray,
+        manipulator: str | None = None,
+        clearance: float = 0.03,
+    ) -> None:
+        self.model = model
+        self.manip = model.manipulator(manipulator)
+        self.tool = self.manip.tool_frame
+        self.idx = np.array([*model.group("base"), *model.group(self.manip.group)], dtype=int)
+        self.q_nominal = np.asarray(q_nominal, float).copy()
+        n = len(self.idx)
+        lo, hi = model.limits.lower[self.idx].copy(), model.limits.upper[self.idx].copy()
+        lo[2], hi[2] = -3 * math.pi, 3 * math.pi  # yaw: continuous, wrapped afterwards
+        self.lo, self.hi = lo, hi
+        z, p = ca.SX.sym("z", n), ca.SX.sym("p", n)  # p = [x0 (3), q_arm_ref (n - 3)]
+        q = ca.SX(ca.DM(self.q_nominal))
+        for k, i in enumerate(self.idx):
+            q[int(i)] = z[k]
+        T = model.casadi_fk((self.tool,))(q)
+        pos = T[:3, 3]
+        f = ca.sumsqr(pos - p[:3]) + W_REG * ca.sumsqr(z[3:] - p[3:])
+        g, self.g_lo = [], []
+        c, s = ca.cos(z[2]), ca.sin(z[2])
+        self.fixtures = [(fx.name, np.asarray(fx.T), np.asarray(fx.size)) for fx in scene.fixtures]
+        self._fixture_boxes = [(fx.name, fixture_boxes(fx)) for fx in scene.fixtures]
+        for _, Tf, size in self.fixtures:
+            R2 = Tf[:2, :2]
+            for cx, cy, r in base_circles(model):
+                wx, wy = z[0] + c * cx - s * cy, z[1] + s * cx + c * cy  # circle centre, world
+                lx = R2[0, 0] * (wx - Tf[0, 3]) + R2[1, 0] * (wy - Tf[1, 3])  # in the fixture frame
+                ly = R2[0, 1] * (wx - Tf[0, 3]) + R2[1, 1] * (wy - Tf[1, 3])
+                dx = _smooth_pos(ca.sqrt(lx * lx + 1e-9) - size[0] / 2)
+                dy = _smooth_pos(ca.sqrt(ly * ly + 1e-9) - size[1] / 2)
+                g.append(ca.sqrt(dx * dx + dy * dy + 1e-9))
+                self.g_lo.append(r + clearance)
+        # arm spheres stay clear of every fixture box (the paper's g(q) collision inequalities)
+        spheres = arm_spheres(model, manipulator)
+        Ts = model.casadi_fk(tuple(fr for fr, _ in spheres))(q)
+        Ts = Ts if isinstance(Ts, (list, tuple)) else [Ts]
+        for _, boxes in self._fixture_boxes:
+            for b in boxes:
+                Tinv = np.linalg.inv(b.T)
+                for (_, r), Tk in zip(spheres, Ts, strict=True):
+                    pl = ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3])
+                    g.append(box_sdf(pl, np.asarray(b.size) / 2))
+                    self.g_lo.append(r)
+        nlp = {"x": z, "p": p, "f": f, "g": ca.vertcat(*g) if g else ca.SX(0, 1)}
+        opts = {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": 100,
+            "ipopt.tol": 1e-6,
+            "ipopt.acceptable_tol": 1e-5,
+            "ipopt.mu_init": 1e-3,
+        }
+        self._solver = ca.nlpsol("reach_ik", "ipopt", nlp, opts)
+        self._fk_pos = ca.Function("fk_pos", [z], [pos])
+        self.home_arm = model.home()[self.idx[3:]]
+        T_home = model.fk(model.home(), self.tool)  # the tool's position in the base frame at home
+        self.reach_xy = T_home[:2, 3].copy()
+        self.reach = float(np.linalg.norm(self.reach_xy))
+
+    # ------------------------------------------------------------------ helpers
+    def inside_fixture(self, x0: FloatArray, margin: float = 0.01) -> str | None:
+        """g_prec: the name of the fixture box containing ``x0`` (inflated by ``margin``), if any."""
+        for fx_name, boxes in self._fixture_boxes:
+            for b in boxes:
+                p = np.linalg.inv(b.T) @ np.r_[x0, 1.0]
+                if np.all(np.abs(p[:3]) <= np.asarray(b.size) / 2 + margin):
+                    return fx_name
+        return None
+
+    def guess(self, x0: FloatArray, yaw: float) -> FloatArray:
+        """z (n,): the base facing ``yaw`` placed so the arm's home reach lands on x0."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        off = np.array([c * self.reach_xy[0] - s * self.reach_xy[1], s * self.reach_xy[0] + c * self.reach_xy[1]])
+        return np.r_[x0[:2] - off, yaw, self.home_arm]
+
+    def z_of(self, q: FloatArray) -> FloatArray:
+        return np.asarray(q, float)[self.idx].copy()
+
+    def q_of(self, z: FloatArray) -> FloatArray:
+        q = self.q_nominal.copy()
+        q[self.idx] = z
+        return self.model.limits.wrap(q)
+
+    def solve(self, x0: FloatArray, z_init: FloatArray) -> IKResult:
+        """Solve Eq. 2 for target ``x0`` (3,) from ``z_init``; ok when the tool reaches x0 within POS_TOL
+        and the base clearance holds (PyBullet collision checking is the caller's)."""
+        x0 = np.asarray(x0, float)
+        z0 = np.clip(np.asarray(z_init, float), self.lo, self.hi)
+        res = self._solver(
+            x0=z0,
+            p=np.r_[x0, self.home_arm],
+            lbx=self.lo,
+            ubx=self.hi,
+            lbg=np.asarray(self.g_lo),
+            ubg=np.full(len(self.g_lo), np.inf),
+        )
+        z = np.asarray(res["x"]).reshape(-1)
+        err = float(np.linalg.norm(np.asarray(self._fk_pos(z)).reshape(-1) - x0))
+        g = np.asarray(res["g"]).reshape(-1)
+        if not np.all(np.isfinite(z)):
+            return IKResult(False, self.q_nominal, math.inf, math.inf, "NaN in the IK solution")
+        if err > POS_TOL:
+            return IKResult(False, self.q_of(z), float(res["f"]), err, f"tool {err * 1e3:.1f} mm from the target")
+        if g.size and np.any(g < np.asarray(self.g_lo) - 1e-4):
+            return IKResult(False, self.q_of(z), float(res["f"]), err, "the robot's shapes overlap a fixture")
+        return IKResult(True, self.q_of(z), float(res["f"]), err, "ok")

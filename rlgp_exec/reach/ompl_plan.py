@@ -1,0 +1,90 @@
+"""OMPL for configuration-space segments the reachability graph cannot certify (and for comparison).
+
+Plans over the graph's planning joints (base x, y, yaw and the arm; every other joint fixed) with
+RRTConnect (or PRM) on the same PyBullet validity check the graph uses. OMPL's own motion check is
+sampled, so every segment of the simplified result is re-checked with the exact edge check of
+:class:`~rlgp_exec.reach.checker.WorldChecker` before the path is returned.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+
+import numpy as np
+
+from rlgp_exec.reach.checker import CLEARANCE, WorldChecker
+from rlgp_exec.robot.model import FloatArray
+
+__all__ = ["OMPL_PLANNERS", "plan_ompl"]
+
+log = logging.getLogger(__name__)
+OMPL_PLANNERS = ("RRTConnect", "PRM")
+OMPL_CLEARANCE = 3 * CLEARANCE  # [m] required of OMPL's states
+
+
+def plan_ompl(
+    checker: WorldChecker,
+    plan_idx: FloatArray,
+    q1: FloatArray,
+    q2: FloatArray,
+    lo_xy: FloatArray,
+    hi_xy: FloatArray,
+    planner: str = "RRTConnect",
+    timeout: float = 1.0,
+) -> FloatArray | None:
+    """A collision-free path (n, nq) from q1 to q2, or None (timeout, or no certifiable path)."""
+    from ompl import base as ob
+    from ompl import geometric as og
+
+    if planner not in OMPL_PLANNERS:
+        raise ValueError(f"unknown OMPL planner {planner!r}; valid: {list(OMPL_PLANNERS)}")
+    model = checker.model
+    idx = np.asarray(plan_idx, dtype=int)
+    q2 = q1 + model.limits.difference(q2, q1)  # unwrapped next to q1
+    lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
+    for k, i in enumerate(idx):
+        if not (np.isfinite(lo[k]) and np.isfinite(hi[k])):  # continuous: one turn around the start
+            lo[k], hi[k] = min(q1[i], q2[i]) - math.pi, max(q1[i], q2[i]) + math.pi
+    lo[:2], hi[:2] = np.minimum(lo_xy, np.minimum(q1[:2], q2[:2])), np.maximum(hi_xy, np.maximum(q1[:2], q2[:2]))
+    n = idx.size
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    for k in range(n):
+        bounds.setLow(k, float(lo[k]))
+        bounds.setHigh(k, float(hi[k]))
+    space.setBounds(bounds)
+    ss = og.SimpleSetup(space)
+    base_q = q1.copy()
+
+    def full(s) -> FloatArray:
+        q = base_q.copy()
+        q[idx] = [s[k] for k in range(n)]
+        return q
+
+    def valid(s) -> bool:
+        # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check
+        q = full(s)
+        return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
+
+    ss.setStateValidityChecker(valid)
+    start, goal = space.allocState(), space.allocState()
+    for k, i in enumerate(idx):
+        start[k], goal[k] = float(q1[i]), float(q2[i])
+    ss.setStartAndGoalStates(start, goal)
+    si = ss.getSpaceInformation()
+    si.setStateValidityCheckingResolution(0.001)  # a fraction of the space's extent: ~1 cm here
+    ss.setPlanner(og.RRTConnect(si) if planner == "RRTConnect" else og.PRM(si))
+    for attempt in range(3):  # OMPL's sampled motion check can cut a corner the exact check refuses
+        if attempt:
+            ss.clear()
+        if not ss.solve(timeout / 3) or not ss.haveExactSolutionPath():
+            continue
+        ss.simplifySolution()
+        path = model.limits.wrap(np.array([full(s) for s in ss.getSolutionPath().getStates()]))
+        if not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path)):
+            return path
+        log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)
+    log.info("OMPL %s found no certified path in %.1f s", planner, timeout)
+    return None

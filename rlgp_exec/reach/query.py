@@ -1,0 +1,291 @@
+"""Path queries on the reachability graph (R-LGP section IV-B), with the solution library.
+
+``query(x1, x2)``: the library answers a known pair at once, in either direction. Otherwise both
+ends are inserted as nodes (IK, Eq. 2, warm-started from the nearest node) and connected to their k
+nearest neighbours (lazily, like every edge: checked only when a shortest path uses it; the paper
+checks them at once, which costs k edge checks per end and query); an end that cannot connect is
+*enhanced*: Gaussian
+samples around it, with a shrinking covariance, become intermediate nodes until one links it to the
+graph. Dijkstra finds the cheapest path; its unchecked edges are checked lazily by interpolating in
+configuration space (at most ``edge_step`` per joint and step) against the PyBullet world; a colliding
+edge is removed and the search repeats; a node that loses all its edges is enhanced again, so the
+graph stays connected. Everything learnt (new nodes, checked and removed edges) stays in the graph.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import networkx as nx
+import numpy as np
+
+from rlgp_exec.reach.checker import WorldChecker
+from rlgp_exec.reach.graph import ReachabilityGraph
+from rlgp_exec.reach.ik import ReachIK
+from rlgp_exec.robot.model import FloatArray
+
+__all__ = ["QueryStatus", "RGPath", "ReachabilityPlanner", "interpolate"]
+
+log = logging.getLogger(__name__)
+ENHANCE_SIGMAS = (0.25, 0.15, 0.08, 0.04)  # [m] the shrinking Gaussian's standard deviations
+ENHANCE_TRIES = 6  # samples per sigma
+MAX_REPLANS = 60
+
+
+class QueryStatus(enum.Enum):
+    OK = "ok"
+    START_UNREACHABLE = "start_unreachable"  # no collision-free IK for the start
+    GOAL_UNREACHABLE = "goal_unreachable"
+    NO_PATH = "no_path"  # the ends are nodes but no collision-free path joins them
+
+
+@dataclass(frozen=True)
+class RGPath:
+    status: QueryStatus
+    path: FloatArray  # (n, nq) configurations, start to goal; empty unless OK
+    cost: float  # h, the heuristic cost (sum of edge costs); inf unless OK
+    cached: bool
+    query_ms: float
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status is QueryStatus.OK
+
+
+def interpolate(g: ReachabilityGraph, q1: FloatArray, q2: FloatArray, step: float) -> FloatArray:
+    """Configurations (n, nq) from q1 to q2 (both included), at most ``step`` per joint apart."""
+    d = g.limits.difference(q2, q1)
+    n = max(1, math.ceil(float(np.abs(d).max()) / step))
+    s = np.linspace(0.0, 1.0, n + 1)[:, None]
+    return g.limits.wrap(q1[None] + s * d[None])
+
+
+class ReachabilityPlanner:
+    def __init__(self, graph: ReachabilityGraph, ik: ReachIK, checker: WorldChecker, rng_seed: int = 0) -> None:
+        """``checker`` checks configurations and edges against the fixtures (PyBullet)."""
+        self.g, self.ik, self.in_collision = graph, ik, checker
+        self.rng = np.random.default_rng(rng_seed)
+        self.library: dict[tuple, tuple[FloatArray, float]] = {}
+        self.counters = {"edge_checks": 0, "edges_removed": 0, "nodes_added": 0, "enhancements": 0, "ompl_paths": 0}
+        self.ompl_fallback, self.ompl_timeout = True, 1.0
+
+    # ------------------------------------------------------------------ the library
+    @staticmethod
+    def _key(x1: FloatArray, x2: FloatArray) -> tuple[tuple, bool]:
+        a, b = tuple(np.round(x1, 6).tolist()), tuple(np.round(x2, 6).tolist())
+        return (min(a, b), max(a, b)), a > b
+
+    def heuristic_cost(self, x1: FloatArray, x2: FloatArray) -> float:
+        """heuristicCost (Algorithm 1): h of the path, inf if there is none."""
+        return self.query(x1, x2).cost
+
+    def waypoints(self, x1: FloatArray, x2: FloatArray) -> FloatArray:
+        """getWaypoints (Algorithm 1): the path's configurations (n, nq); empty if there is none."""
+        return self.query(x1, x2).path
+
+    # ------------------------------------------------------------------ checks
+    def edge_valid(self, i: int, j: int) -> bool:
+        """Check an edge once (lazily); remember the verdict in the graph."""
+        data = self.g.G.edges[i, j]
+        if data["checked"]:
+            return True
+        self.counters["edge_checks"] += 1
+        if self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j]):
+            self.g.G.remove_edge(i, j)
+            self.counters["edges_removed"] += 1
+            return False
+        data["checked"] = True
+        return True
+
+    # ------------------------------------------------------------------ nodes
+    def _solve_node(self, x: FloatArray) -> tuple[FloatArray, float] | None:
+        if self.ik.inside_fixture(x) is not None:
+            return None
+        near = self.g.nearest(x, 1)
+        if near and float(np.linalg.norm(self.g.X[near[0]] - x)) < 1e-9:  # x is a node: its q is validated
+            return self.g.Q[near[0]].copy(), float(self.g.C[near[0]])
+        inits = []
+        for j in self.g.nearest(x, 3):
+            z = self.ik.z_of(self.g.Q[j])
+            z[:2] += x[:2] - self.g.X[j][:2]
+            inits.append(z)
+        inits.append(self.ik.guess(x, self.rng.uniform(-math.pi, math.pi)))
+        for z0 in inits:
+            res = self.ik.solve(x, z0)
+            if res.ok and not self.in_collision(res.q):
+                return res.q, res.cost
+        return None
+
+    def _connect(self, i: int, check: bool) -> int:
+        """Edges from node i to its k nearest neighbours; with ``check``, collision-checked now (returns
+        how many are valid), else left for the lazy check (returns how many were added)."""
+        n = 0
+        for j in self.g.nearest(self.g.X[i], self.g.params.k, exclude=i):
+            if not self.g.G.has_edge(i, j):
+                self.g.add_edge(i, j)
+            n += self.edge_valid(i, j) if check else 1
+        return n
+
+    def _enhance(self, i: int) -> bool:
+        """Gaussian samples around node i, shrinking, until one connects i to the rest of the graph."""
+        self.counters["enhancements"] += 1
+        x = self.g.X[i]
+        for sigma in ENHANCE_SIGMAS:
+            for _ in range(ENHANCE_TRIES):
+                xs = x + self.rng.normal(0.0, sigma, 3)
+                sol = self._solve_node(xs)
+                if sol is None:
+                    continue
+                j = self.g.add_node(xs, *sol)
+                self.counters["nodes_added"] += 1
+                self.g.add_edge(i, j)
+                if not self.edge_valid(i, j) or self._connect(j, check=True) < 2:
+                    if self.g.G.degree(j) == 0:
+                        self.g.remove_node(j)
+                    continue
+                return True
+        return False
+
+    def _bridge(self, a: int, b: int, pairs: int = 6) -> bool:
+        """Join the components of a and b: Gaussian samples around the midpoints of their closest node
+        pairs (task space) become nodes with checked edges to both sides."""
+        from scipy.spatial import cKDTree
+
+        self.counters["enhancements"] += 1
+        A = np.fromiter(nx.node_connected_component(self.g.G, a), dtype=int)
+        B = np.fromiter(nx.node_connected_component(self.g.G, b), dtype=int)
+        d, j = cKDTree(self.g.X[B]).query(self.g.X[A])
+        for k in np.argsort(d)[:pairs]:
+            u, v = int(A[k]), int(B[j[k]])
+            mid = 0.5 * (self.g.X[u] + self.g.X[v])
+            for sigma in ENHANCE_SIGMAS:
+                for _ in range(2):
+                    xs = mid + self.rng.normal(0.0, sigma, 3)
+                    sol = self._solve_node(xs)
+                    if sol is None:
+                        continue
+                    n = self.g.add_node(xs, *sol)
+                    self.g.add_edge(u, n)
+                    self.g.add_edge(n, v)
+                    if self.edge_valid(u, n) and self.edge_valid(n, v):
+                        self.counters["nodes_added"] += 1
+                        self._connect(n, check=False)
+                        return True
+                    self.g.remove_node(n)
+        return False
+
+    def insert(self, x: FloatArray, q: FloatArray | None = None) -> int | None:
+        """A node at x (with q, or by IK), connected to the graph; None if x has no valid configuration.
+        A target that is already a node (same x, no q given) is that node."""
+        if q is None:
+            near = self.g.nearest(x, 1)
+            if near and float(np.linalg.norm(self.g.X[near[0]] - np.asarray(x, float))) < 1e-9:
+                return near[0]
+            sol = self._solve_node(np.asarray(x, float))
+            if sol is None:
+                return None
+            q, c = sol
+        else:
+            if self.in_collision(q):
+                return None
+            c = 0.0
+        i = self.g.add_node(x, q, c)
+        self.counters["nodes_added"] += 1
+        self._connect(i, check=False)  # lazily: Dijkstra's path is checked, and a node cut off is enhanced
+        return i
+
+    # ------------------------------------------------------------------ queries
+    def query(self, x1: FloatArray, x2: FloatArray, q1: FloatArray | None = None) -> RGPath:
+        """The cheapest collision-free path from x1 to x2 (x1 may come with its configuration q1, e.g.
+        the robot's current one)."""
+        t0 = time.perf_counter()
+        x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
+        key, flipped = self._key(x1, x2)
+        if q1 is None and key in self.library:
+            path, cost = self.library[key]
+            return RGPath(QueryStatus.OK, path[::-1] if flipped else path, cost, True, (time.perf_counter() - t0) * 1e3)
+        a = self.insert(x1, q1)
+        if a is None:
+            return RGPath(
+                QueryStatus.START_UNREACHABLE,
+                np.zeros((0, self.g.limits.n)),
+                math.inf,
+                False,
+                (time.perf_counter() - t0) * 1e3,
+                f"no collision-free configuration reaches {x1.round(3)}",
+            )
+        b = self.insert(x2)
+        if b is None:
+            return RGPath(
+                QueryStatus.GOAL_UNREACHABLE,
+                np.zeros((0, self.g.limits.n)),
+                math.inf,
+                False,
+                (time.perf_counter() - t0) * 1e3,
+                f"no collision-free configuration reaches {x2.round(3)}",
+            )
+        for _ in range(MAX_REPLANS):
+            try:
+                nodes = nx.dijkstra_path(self.g.G, a, b, weight="weight")
+            except nx.NetworkXNoPath:
+                if not self._bridge(a, b):
+                    break
+                continue
+            bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]
+            if not bad:
+                path = self.g.Q[nodes]
+                cost = float(sum(self.g.G.edges[u, v]["weight"] for u, v in itertools.pairwise(nodes)))
+                if q1 is None:
+                    self.library[key] = (path[::-1] if flipped else path, cost)
+                return RGPath(QueryStatus.OK, path, cost, False, (time.perf_counter() - t0) * 1e3)
+            for u, v in bad:
+                for n in (u, v):
+                    if n in self.g.G and self.g.G.degree(n) == 0:
+                        self._enhance(n)
+        if self.ompl_fallback:  # the graph cannot certify a path: plan this segment with OMPL
+            from rlgp_exec.reach.ompl_plan import plan_ompl
+
+            X = self.g.X[self.g.alive]
+            path = plan_ompl(
+                self.in_collision,
+                self.g.plan_idx,
+                self.g.Q[a],
+                self.g.Q[b],
+                X[:, :2].min(axis=0) - 1.0,
+                X[:, :2].max(axis=0) + 1.0,
+                timeout=self.ompl_timeout,
+            )
+            if path is not None:
+                cost = float(sum(self.g.q_distance(u, v) for u, v in itertools.pairwise(path)))
+                self.counters["ompl_paths"] += 1
+                return RGPath(QueryStatus.OK, path, cost, False, (time.perf_counter() - t0) * 1e3, "ompl")
+        return RGPath(
+            QueryStatus.NO_PATH,
+            np.zeros((0, self.g.limits.n)),
+            math.inf,
+            False,
+            (time.perf_counter() - t0) * 1e3,
+            "no collision-free path after replanning",
+        )
+
+
+def _bisection_order(n: int) -> list[int]:
+    """Indices 0..n-1, the ends first, then midpoints of ever finer halves (finds collisions early)."""
+    order, seen = [0, n - 1], {0, n - 1}
+    queue = [(0, n - 1)]
+    while queue:
+        lo, hi = queue.pop(0)
+        if hi - lo < 2:
+            continue
+        mid = (lo + hi) // 2
+        if mid not in seen:
+            seen.add(mid)
+            order.append(mid)
+        queue += [(lo, mid), (mid, hi)]
+    return [i for i in order if 0 <= i < n]

@@ -1,0 +1,156 @@
+"""Reachability graph: valid nodes, no path through a wall, the library, persistence, cache checks."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rlgp_exec.reach import (
+    GraphCacheError,
+    QueryStatus,
+    ReachabilityGraph,
+    ReachabilityPlanner,
+    ReachIK,
+    RGParams,
+    WorldChecker,
+    build_graph,
+    interpolate,
+    load_or_build,
+    nominal_q,
+)
+from rlgp_exec.reach.build import graph_meta
+from rlgp_exec.reach.ik import POS_TOL
+from rlgp_exec.reach.ompl_plan import plan_ompl
+from rlgp_exec.robot import load_robot
+from rlgp_exec.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent
+WALL = ROOT / "data" / "wall_hsr.toml"
+SORTING = ROOT.parent / "sim" / "scenes" / "sorting_hsr.toml"
+PARAMS = RGParams(samples=60, k=8, seed=3)
+
+
+@pytest.fixture(scope="module")
+def wall():
+    scene = load_scene(WALL)
+    model = load_robot("hsr")
+    graph, stats = build_graph(scene, params=PARAMS, workers=1)
+    checker = WorldChecker(scene, model.manipulator().group)
+    planner = ReachabilityPlanner(graph, ReachIK(model, scene, nominal_q(model, scene)), checker, rng_seed=0)
+    yield scene, model, graph, stats, checker, planner
+    checker.close()
+
+
+def replay_is_collision_free(scene, graph, path) -> bool:
+    from sim.world import build_world
+
+    world = build_world(replace(scene, objects=()), tags=False)
+    try:
+        fine = np.vstack([interpolate(graph, a, b, 0.0025) for a, b in itertools.pairwise(path)])
+        return not any(world.robot.in_collision(q) for q in fine)
+    finally:
+        world.close()
+
+
+def test_every_node_reaches_its_point_and_is_collision_free(wall):
+    _scene, model, graph, stats, checker, _ = wall
+    assert graph.G.number_of_nodes() == PARAMS.samples and stats.attempts >= PARAMS.samples
+    tool = model.manipulator().tool_frame
+    for i in graph.alive:
+        assert np.linalg.norm(model.fk(graph.Q[i], tool)[:3, 3] - graph.X[i]) <= POS_TOL
+        assert not checker(graph.Q[i])
+    assert all(graph.G.degree(i) > 0 for i in graph.alive)
+
+
+def test_a_path_never_goes_through_the_wall(wall):
+    scene, _model, graph, _, checker, planner = wall
+    left = [i for i in graph.alive if graph.X[i][0] < -0.4 and graph.X[i][1] > -0.3]
+    right = [i for i in graph.alive if graph.X[i][0] > 0.4 and graph.X[i][1] > -0.3]
+    assert left and right
+    a, b = left[0], right[0]
+    # the straight configuration-space motion between them crosses the wall
+    assert checker.edge_collides(graph.Q[a], graph.Q[b])
+    res = planner.query(graph.X[a], graph.X[b])
+    assert res.status is QueryStatus.OK, res.reason
+    assert np.allclose(res.path[0], graph.Q[a]) and np.allclose(res.path[-1], graph.Q[b])
+    assert replay_is_collision_free(scene, graph, res.path)
+    # a detour: the base goes round one end of the wall (y from -0.7 to 1.7; base radius 0.215)
+    assert res.path[:, 1].min() < -0.7 - 0.2 or res.path[:, 1].max() > 1.7 + 0.2
+
+
+def test_the_library_answers_both_directions(wall):
+    _, _, graph, _, _, planner = wall
+    a, b = graph.alive[5], graph.alive[40]
+    first = planner.query(graph.X[a], graph.X[b])
+    assert first.ok and not first.cached
+    back = planner.query(graph.X[b], graph.X[a])
+    assert back.cached and np.array_equal(back.path, first.path[::-1]) and back.cost == first.cost
+    again = planner.query(graph.X[a], graph.X[b])
+    assert again.cached and np.array_equal(again.path, first.path)
+    assert planner.heuristic_cost(graph.X[b], graph.X[a]) == first.cost
+
+
+def test_unreachable_targets_are_statuses(wall):
+    _, _, graph, _, _, planner = wall
+    inside_wall = np.array([0.0, 0.5, 0.8])
+    far_away = np.array([9.0, 9.0, 2.5])  # the base can drive anywhere, but not lift the hand to 2.5 m
+    assert planner.query(inside_wall, graph.X[graph.alive[0]]).status is QueryStatus.START_UNREACHABLE
+    assert planner.query(graph.X[graph.alive[0]], far_away).status is QueryStatus.GOAL_UNREACHABLE
+
+
+def test_ompl_plans_a_certified_path_round_the_wall(wall):
+    _, _, graph, _, checker, _ = wall
+    left = [i for i in graph.alive if graph.X[i][0] < -0.4]
+    right = [i for i in graph.alive if graph.X[i][0] > 0.4]
+    path = plan_ompl(
+        checker,
+        graph.plan_idx,
+        graph.Q[left[0]],
+        graph.Q[right[0]],
+        np.array([-2.0, -2.0]),
+        np.array([2.0, 2.0]),
+        timeout=5.0,
+    )
+    assert path is not None
+    assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+
+
+def test_a_saved_graph_reloads_identical_and_bad_files_are_refused(wall, tmp_path):
+    scene, model, graph, _, _, _ = wall
+    meta = graph_meta(model, scene, model.manipulator().name, PARAMS)
+    path = graph.save(tmp_path / "g.npz")
+    again = ReachabilityGraph.load(path, model.limits, meta)
+    assert again.same_as(graph)
+    with pytest.raises(GraphCacheError, match="scene_hash"):
+        ReachabilityGraph.load(path, model.limits, {**meta, "scene_hash": "0" * 64})
+    with pytest.raises(GraphCacheError, match="params"):
+        ReachabilityGraph.load(path, model.limits, {**meta, "params": {**meta["params"], "k": 9}})
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(GraphCacheError, match="not a readable"):
+        ReachabilityGraph.load(bad, model.limits, meta)
+    # arrays tampered with: an edge to a node that does not exist
+    with np.load(path) as z:
+        arrays = dict(z)
+    arrays["edges"] = np.vstack([arrays["edges"], [0, 10_000]])
+    arrays["checked"] = np.r_[arrays["checked"], False]
+    np.savez(tmp_path / "tampered.npz", **arrays)
+    with pytest.raises(GraphCacheError, match="inconsistent"):
+        ReachabilityGraph.load(tmp_path / "tampered.npz", model.limits, meta)
+
+
+def test_load_or_build_uses_a_good_cache_and_rebuilds_a_corrupt_one(tmp_path):
+    scene = load_scene(SORTING)
+    params = RGParams(samples=12, seed=1)
+    g1, s1 = load_or_build(scene, params=params, workers=1, folder=tmp_path)
+    assert not s1.from_cache
+    g2, s2 = load_or_build(scene, params=params, workers=1, folder=tmp_path)
+    assert s2.from_cache and g2.same_as(g1)
+    (cache,) = tmp_path.glob("*.npz")
+    cache.write_bytes(b"garbage")
+    g3, s3 = load_or_build(scene, params=params, workers=1, folder=tmp_path)
+    assert not s3.from_cache and g3.G.number_of_nodes() == 12
