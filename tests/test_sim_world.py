@@ -118,6 +118,6 @@ def test_demo_runs_every_available_stage_and_writes_its_pictures(tmp_path):
     report = run_demo(tmp_path, seed=1)
     assert report.ok, report.text()
     ran = [s.name for s in report.stages if s.ok]
-    assert ran[:3] == ["scene", "world", "render"]
+    assert ran == ["scene", "world", "render", "perceive", "reach", "time", "execute"]
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
     assert "not in this build" in report.text()  # missing layers are reported, never faked

@@ -115,7 +115,8 @@ class ReachabilityPlanner:
             z = self.ik.z_of(self.g.Q[j])
             z[:2] += x[:2] - self.g.X[j][:2]
             inits.append(z)
-        inits.append(self.ik.guess(x, self.rng.uniform(-math.pi, math.pi)))
+        a0 = self.rng.uniform(-math.pi, math.pi)
+        inits += [self.ik.guess(x, a0 + k * math.pi / 2) for k in range(4)]  # approach from four sides
         for z0 in inits:
             res = self.ik.solve(x, z0)
             if res.ok and not self.in_collision(res.q):

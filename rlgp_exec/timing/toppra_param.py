@@ -9,14 +9,18 @@ sdot_max(s) = min_i v_i / |(R(-yaw) [x', y'])_i|, imposed as |x'| sdot <= |x'| s
 likewise for y). Base accelerations use the conservative world-frame bound a / sqrt(2).
 
 TOPPRA enforces the limits at gridpoints; between them the spline can overshoot by a few per
-cent. Every result is therefore sampled densely and, if it breaks a limit, recomputed with the
-limits scaled by the overshoot (at most ``MAX_RETRIES`` times): the returned trajectory respects
-the limits at every sample, or the status says why not.
+cent (p''(s) sdot^2 is a product of two functions that vary within an interval, so re-solving with
+scaled limits does not remove it). Every result is therefore sampled densely and, if it breaks a
+limit, slowed down uniformly: dividing the path speed by c divides velocities by c and accelerations
+by c^2 exactly, so c = max(v ratio, sqrt(a ratio)) restores the limits at the cost of a few per cent
+of duration. The returned trajectory respects the limits at every check sample, or the status says
+why not.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 
@@ -43,7 +47,7 @@ __all__ = ["MAX_RETRIES", "ConstAccelPiece", "PchipPath", "time_parameterize", "
 log = logging.getLogger(__name__)
 logging.getLogger("toppra").setLevel(logging.WARNING)
 
-MAX_RETRIES = 4
+MAX_RETRIES = 3
 CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
 POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
 _DUP = 1e-9
@@ -75,6 +79,26 @@ class PchipPath(ta.interpolator.AbstractGeometricPath):
     @property
     def waypoints(self):
         return self._ss, self._wp
+
+
+class _LeftLimit:
+    """The path with its second derivative taken from the left (just before each s): PCHIP's p'' jumps
+    at the waypoints, and TOPPRA's constraint at a waypoint gridpoint sees only the right-hand value."""
+
+    def __init__(self, path: PchipPath) -> None:
+        self.path, self.dof = path, path.dof
+
+    def __call__(self, s, order: int = 0):
+        if order == 2:
+            return self.path(np.maximum(np.asarray(s, float) - 1e-9, 0.0), 2)
+        return self.path(s, order)
+
+
+class _LeftAcceleration(ta_con.JointAccelerationConstraint):
+    """Joint acceleration limits on the left-hand limit of the path's second derivative (collocated)."""
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+        return super().compute_constraint_params(_LeftLimit(path), gridpoints, *args, **kwargs)
 
 
 class ConstAccelPiece:
@@ -144,7 +168,8 @@ def _body_speeds(q: FloatArray, dq: FloatArray) -> FloatArray:
     return np.abs(np.stack([c * dq[:, 0] + s * dq[:, 1], -s * dq[:, 0] + c * dq[:, 1]], axis=1))
 
 
-def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> float:
+def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> tuple[float, float]:
+    """The worst velocity and acceleration limit ratios over dense samples."""
     # evenly spaced samples, plus each gridpoint's left limit: PCHIP's second derivative jumps at
     # the waypoints, and the waypoints are gridpoints
     ts = np.linspace(0.0, spline.duration, CHECK_PER_INTERVAL * (len(spline._tt) - 1) + 1)
@@ -155,7 +180,7 @@ def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> fl
     if base:
         v_ratio[:, :2] = _body_speeds(q, dq) / limits.velocity[:2]
         a_lim[:2] /= np.sqrt(2.0)
-    return float(max(v_ratio.max(), (np.abs(ddq) / a_lim).max()))
+    return float(v_ratio.max()), float((np.abs(ddq) / a_lim).max())
 
 
 def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
@@ -182,17 +207,22 @@ def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
     pc_a = ta_con.JointAccelerationConstraint(
         np.c_[-a, a], discretization_scheme=ta_con.DiscretizationType.Interpolation
     )
-    # PCHIP's second derivative jumps at the waypoints: put a gridpoint on each waypoint and one just
-    # before it, so that TOPPRA constrains both one-sided values. That tiny interval can make the
-    # interpolation scheme uncontrollable where a joint reverses; then the waypoints alone (the
-    # verification below catches what the one-sided values add).
+    # PCHIP's second derivative jumps at the waypoints: each waypoint is a gridpoint, and TOPPRA must see
+    # both one-sided values there. First try: a second gridpoint just before each waypoint. That tiny
+    # interval can make the instance uncontrollable where a joint reverses; second: the left-hand value
+    # as a collocated constraint at the waypoint; last: the waypoints alone (verification catches the rest).
     inner = path.waypoints[0][1:-1]
+    pc_a_left = _LeftAcceleration(np.c_[-a, a], discretization_scheme=ta_con.DiscretizationType.Collocation)
     uniform = np.linspace(0.0, 1.0, max(gridpoints + 1 - 2 * len(inner), 2))
-    data = None
-    for grid in (np.r_[uniform, inner, inner - 1e-6], np.r_[uniform, inner]):
+    tries = (
+        (np.r_[uniform, inner, inner - 1e-6], [pc_v, pc_a]),
+        (np.r_[uniform, inner], [pc_v, pc_a, pc_a_left]),
+        (np.r_[uniform, inner], [pc_v, pc_a]),
+    )
+    for grid, constraints in tries:
         grid = np.unique(grid)
         grid = grid[np.r_[True, np.diff(grid) > 1e-9]]
-        inst = ta_algo.TOPPRA([pc_v, pc_a], path, gridpoints=grid, solver_wrapper="seidel")
+        inst = ta_algo.TOPPRA(constraints, path, gridpoints=grid, solver_wrapper="seidel")
         inst.compute_parameterization(0.0, 0.0)
         data = inst.problem_data
         if data.return_code == ta_algo.ParameterizationReturnCode.Ok and data.sd_vec is not None:
@@ -229,51 +259,40 @@ def time_parameterize(
             compute_ms=(time.perf_counter() - t0) * 1e3,
         )
     base = _has_base(limits)
-    work = limits
+    try:
+        spline = _solve(spline_path, limits, base, gridpoints)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+        return TimingResult(
+            TimingStatus.NUMERICAL,
+            f"TOPPRA failed: {type(e).__name__}: {e}",
+            compute_ms=(time.perf_counter() - t0) * 1e3,
+        )
+    if spline is None:
+        return TimingResult(
+            TimingStatus.INFEASIBLE,
+            "TOPPRA found no parameterisation under the limits",
+            compute_ms=(time.perf_counter() - t0) * 1e3,
+        )
+    if not np.isfinite(spline.duration) or spline.duration <= 0.0:
+        return TimingResult(
+            TimingStatus.NUMERICAL,
+            f"TOPPRA returned duration {spline.duration}",
+            compute_ms=(time.perf_counter() - t0) * 1e3,
+        )
     for attempt in range(MAX_RETRIES + 1):
-        try:
-            spline = _solve(spline_path, work, base, gridpoints)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
-            return TimingResult(
-                TimingStatus.NUMERICAL,
-                f"TOPPRA failed: {type(e).__name__}: {e}",
-                compute_ms=(time.perf_counter() - t0) * 1e3,
-                retries=attempt,
-            )
-        if spline is None:
-            return TimingResult(
-                TimingStatus.INFEASIBLE,
-                "TOPPRA found no parameterisation under the limits",
-                compute_ms=(time.perf_counter() - t0) * 1e3,
-                retries=attempt,
-            )
-        if not np.isfinite(spline.duration) or spline.duration <= 0.0:
-            return TimingResult(
-                TimingStatus.NUMERICAL,
-                f"TOPPRA returned duration {spline.duration}",
-                compute_ms=(time.perf_counter() - t0) * 1e3,
-                retries=attempt,
-            )
-        ratio = _worst_ratio(spline, limits, base)
-        if ratio <= 1.0 + 1e-6:
+        rv, ra = _worst_ratio(spline, limits, base)
+        if max(rv, ra) <= 1.0 + 1e-6:
             traj = Trajectory(
                 limits.names, limits, (spline,), (Segment(PhaseKind.MOTION, 0.0, float(spline.duration)),)
             )
             return TimingResult(TimingStatus.OK, "ok", traj, (time.perf_counter() - t0) * 1e3, attempt)
-        scale = min(0.999 / ratio, 0.999)
-        work = JointLimits(
-            work.names,
-            work.lower,
-            work.upper,
-            work.velocity * scale,
-            work.acceleration * scale,
-            work.jerk,
-            work.continuous,
-        )
-        log.debug("TOPPRA overshoot %.4f: retry %d with limits x %.4f", ratio, attempt + 1, scale)
+        # slow the whole motion down by c: velocities scale by 1/c and accelerations by 1/c^2, exactly
+        c = max(rv, math.sqrt(ra), 1.0) * 1.0005
+        log.debug("TOPPRA overshoot (v %.4f, a %.4f): stretching time by %.4f", rv, ra, c)
+        spline = ConstAccelPiece(spline.path, spline._ss, spline._sd / c)
     return TimingResult(
         TimingStatus.LIMIT_VIOLATION,
-        f"limits still exceeded by {ratio - 1:.2%} after {MAX_RETRIES} retries",
+        f"limits still exceeded (v x{rv:.4f}, a x{ra:.4f}) after {MAX_RETRIES} time stretches",
         compute_ms=(time.perf_counter() - t0) * 1e3,
         retries=MAX_RETRIES,
     )
