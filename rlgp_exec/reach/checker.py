@@ -59,14 +59,44 @@ class WorldChecker:
         self.radii = joint_radii(self.model, arm_group)
         self.arm = np.array(self.model.group(arm_group))
         self.calls = 0
+        self.tool = self.model.manipulator().tool_frame
+        self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
+
+    def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
+        """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame."""
+        self.detach()
+        half = [float(v) / 2 for v in size]
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
+        body = p.createMultiBody(0.0, col, -1, [0, 0, -10], physicsClientId=self.client)
+        p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
+        for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
+            p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+        extra = float(np.linalg.norm(T_tool_obj[:3, 3]) + np.linalg.norm(half))
+        self.attached = (body, np.asarray(T_tool_obj, float), extra)
+
+    def detach(self) -> None:
+        if self.attached is not None:
+            p.removeBody(self.attached[0], physicsClientId=self.client)
+            self.attached = None
 
     def distance(self, q: FloatArray) -> float:
-        """Smallest robot-fixture distance [m] (capped at LOOKAHEAD)."""
+        """Smallest distance [m] from the robot (and a held object) to the fixtures (capped at LOOKAHEAD)."""
         self.robot.set_q(q, only_changed=True)
+        bodies = [self.robot.id]
+        if self.attached is not None:
+            body, T_to, _ = self.attached
+            T = self.model.fk(q, self.tool) @ T_to
+            from scipy.spatial.transform import Rotation
+
+            p.resetBasePositionAndOrientation(
+                body, T[:3, 3].tolist(), Rotation.from_matrix(T[:3, :3]).as_quat().tolist(), physicsClientId=self.client
+            )
+            bodies.append(body)
         d = LOOKAHEAD
-        for b in self.bodies:
-            for c in p.getClosestPoints(self.robot.id, b, d, physicsClientId=self.client):
-                d = min(d, float(c[8]))
+        for a in bodies:
+            for b in self.bodies:
+                for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
+                    d = min(d, float(c[8]))
         return d
 
     def self_collision(self, q: FloatArray) -> bool:
@@ -85,7 +115,8 @@ class WorldChecker:
         """True when the straight motion q1 -> q2 (yaw the short way) comes within CLEARANCE of a
         fixture or self-collides."""
         dq = self.model.limits.difference(q2, q1)
-        bound = float(np.abs(dq) @ self.radii)  # max displacement of any robot point over the edge [m]
+        radii = self.radii if self.attached is None else self.radii + self.attached[2]  # the object reaches further
+        bound = float(np.abs(dq) @ radii)  # max displacement of any robot (or held) point over the edge [m]
         arm_len = float(np.abs(dq[self.arm]).max()) if self.arm.size else 0.0
         n_self = max(1, math.ceil(arm_len / SELF_STEP))
         s, last_self = 0.0, -1.0

@@ -165,9 +165,10 @@ class ReachIK:
         q[self.idx] = z
         return self.model.limits.wrap(q)
 
-    def solve(self, x0: FloatArray, z_init: FloatArray) -> IKResult:
+    def solve(self, x0: FloatArray, z_init: FloatArray, fix_base: bool = False) -> IKResult:
         """Solve Eq. 2 for target ``x0`` (3,) from ``z_init``; ok when the tool reaches x0 within POS_TOL
-        and the base clearance holds (PyBullet collision checking is the caller's)."""
+        and the base clearance holds (PyBullet collision checking is the caller's). ``fix_base`` keeps
+        the base where z_init has it."""
         x0 = np.asarray(x0, float)
         z0 = np.clip(np.asarray(z_init, float), self.lo, self.hi)
         res = self._solver(

@@ -74,6 +74,7 @@ class ReachabilityPlanner:
         self.library: dict[tuple, tuple[FloatArray, float]] = {}
         self.counters = {"edge_checks": 0, "edges_removed": 0, "nodes_added": 0, "enhancements": 0, "ompl_paths": 0}
         self.ompl_fallback, self.ompl_timeout = True, 1.0
+        self._carry_verdicts: dict[tuple[int, int], bool] = {}
 
     # ------------------------------------------------------------------ the library
     @staticmethod
@@ -91,7 +92,14 @@ class ReachabilityPlanner:
 
     # ------------------------------------------------------------------ checks
     def edge_valid(self, i: int, j: int) -> bool:
-        """Check an edge once (lazily); remember the verdict in the graph."""
+        """Check an edge once (lazily); remember the verdict in the graph. While carrying an object the
+        verdict holds for this query only: an edge too tight for the object may be fine for the hand."""
+        if self.in_collision.attached is not None:
+            key = (min(i, j), max(i, j))
+            if key not in self._carry_verdicts:
+                self.counters["edge_checks"] += 1
+                self._carry_verdicts[key] = not self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j])
+            return self._carry_verdicts[key]
         data = self.g.G.edges[i, j]
         if data["checked"]:
             return True
@@ -102,6 +110,19 @@ class ReachabilityPlanner:
             return False
         data["checked"] = True
         return True
+
+    def _weight(self, u: int, v: int, d: dict) -> float | None:
+        if self._carry_verdicts.get((min(u, v), max(u, v))) is False:
+            return None  # hidden for this carrying query
+        return d["weight"]
+
+    def carrying(self, size: FloatArray | None, T_tool_obj: FloatArray | None = None) -> None:
+        """Plan the next queries with an object of box ``size`` (3,) held at T_tool_obj (None: hand only)."""
+        self._carry_verdicts = {}
+        if size is None:
+            self.in_collision.detach()
+        else:
+            self.in_collision.attach(size, T_tool_obj)
 
     # ------------------------------------------------------------------ nodes
     def _solve_node(self, x: FloatArray) -> tuple[FloatArray, float] | None:
@@ -202,13 +223,15 @@ class ReachabilityPlanner:
         return i
 
     # ------------------------------------------------------------------ queries
-    def query(self, x1: FloatArray, x2: FloatArray, q1: FloatArray | None = None) -> RGPath:
-        """The cheapest collision-free path from x1 to x2 (x1 may come with its configuration q1, e.g.
-        the robot's current one)."""
+    def query(
+        self, x1: FloatArray, x2: FloatArray, q1: FloatArray | None = None, q2: FloatArray | None = None
+    ) -> RGPath:
+        """The cheapest collision-free path from x1 to x2; either end may come with its configuration
+        (the robot's current one, an optimised keyframe), which the path then starts or ends at."""
         t0 = time.perf_counter()
         x1, x2 = np.asarray(x1, float), np.asarray(x2, float)
         key, flipped = self._key(x1, x2)
-        if q1 is None and key in self.library:
+        if q1 is None and q2 is None and key in self.library:
             path, cost = self.library[key]
             return RGPath(QueryStatus.OK, path[::-1] if flipped else path, cost, True, (time.perf_counter() - t0) * 1e3)
         a = self.insert(x1, q1)
@@ -221,7 +244,7 @@ class ReachabilityPlanner:
                 (time.perf_counter() - t0) * 1e3,
                 f"no collision-free configuration reaches {x1.round(3)}",
             )
-        b = self.insert(x2)
+        b = self.insert(x2, q2)
         if b is None:
             return RGPath(
                 QueryStatus.GOAL_UNREACHABLE,
@@ -233,7 +256,7 @@ class ReachabilityPlanner:
             )
         for _ in range(MAX_REPLANS):
             try:
-                nodes = nx.dijkstra_path(self.g.G, a, b, weight="weight")
+                nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
             except nx.NetworkXNoPath:
                 if not self._bridge(a, b):
                     break
@@ -242,7 +265,7 @@ class ReachabilityPlanner:
             if not bad:
                 path = self.g.Q[nodes]
                 cost = float(sum(self.g.G.edges[u, v]["weight"] for u, v in itertools.pairwise(nodes)))
-                if q1 is None:
+                if q1 is None and q2 is None:
                     self.library[key] = (path[::-1] if flipped else path, cost)
                 return RGPath(QueryStatus.OK, path, cost, False, (time.perf_counter() - t0) * 1e3)
             for u, v in bad:

@@ -41,6 +41,8 @@ class Manipulator:
     open: float
     closed: float
     links: tuple[str, ...]
+    approach: tuple[float, float, float] = (0.0, 0.0, 1.0)  # tool-frame axis pointing out of the hand
+    closing: tuple[float, float, float] = (0.0, 1.0, 0.0)  # tool-frame axis the fingers close along
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,8 @@ def load_robot_config(name: str) -> RobotConfig:
             name=m["name"], group=m["group"], gripper=m["gripper"], tool_frame=m["tool_frame"],
             palm_frame=m["palm_frame"], open=float(m["open"]), closed=float(m["closed"]),
             links=tuple(m.get("links", ())),
+            approach=tuple(float(v) for v in m.get("approach", (0.0, 0.0, 1.0))),  # type: ignore[arg-type]
+            closing=tuple(float(v) for v in m.get("closing", (0.0, 1.0, 0.0))),  # type: ignore[arg-type]
         )
         for m in _get(raw, "manipulator", where)
     )

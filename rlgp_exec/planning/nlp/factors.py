@@ -1,0 +1,117 @@
+"""Constraint factors on one robot configuration, as CasADi expressions (the shared building blocks of
+the keyframe NLP, the path NLP and the reachability graph's IK).
+
+A factor returns rows ``(g, lower, upper)``. Shapes: the robot by spheres on the arm (frames along the
+manipulator) and circles on the base footprint; the world by boxes. Distances are smooth signed
+distances (``box_sdf``), so IPOPT sees gradients everywhere.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from rlgp_exec.reach.ik import _smooth_pos, arm_spheres, base_circles, box_sdf
+from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.scene.geometry import Box
+
+__all__ = ["RobotSymbols", "Rows", "box_clear", "footprint_clear", "grasp_top", "inside_rectangle"]
+
+
+@dataclass
+class Rows:
+    """Constraint rows g with bounds lower <= g <= upper."""
+
+    g: list[ca.SX]
+    lower: list[float]
+    upper: list[float]
+
+    def add(self, g: ca.SX, lower: float, upper: float) -> None:
+        self.g.append(g)
+        self.lower.append(lower)
+        self.upper.append(upper)
+
+    @classmethod
+    def empty(cls) -> Rows:
+        return cls([], [], [])
+
+
+class RobotSymbols:
+    """The robot at one symbolic configuration z = [x, y, yaw, q_arm] (the other joints fixed)."""
+
+    def __init__(self, model: RobotModel, q_nominal: FloatArray, manipulator: str | None, z: ca.SX) -> None:
+        self.model, self.manip = model, model.manipulator(manipulator)
+        self.idx = np.array([*model.group("base"), *model.group(self.manip.group)], dtype=int)
+        q = ca.SX(ca.DM(np.asarray(q_nominal, float)))
+        for k, i in enumerate(self.idx):
+            q[int(i)] = z[k]
+        self.z, self.q = z, q
+        self.spheres = arm_spheres(model, self.manip.name)
+        frames = tuple(dict.fromkeys((self.manip.tool_frame, *(f for f, _ in self.spheres))))
+        Ts = model.casadi_fk(frames)(q)
+        Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
+        self.T_tool = Ts[self.manip.tool_frame]
+        self.sphere_T = [Ts[f] for f, _ in self.spheres]
+        self.circles = base_circles(model)
+
+    @property
+    def tool_pos(self) -> ca.SX:
+        return self.T_tool[:3, 3]
+
+    def tool_axis(self, axis: tuple[float, float, float]) -> ca.SX:
+        return self.T_tool[:3, :3] @ ca.DM(axis)
+
+
+def box_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0) -> None:
+    """Every arm sphere at least its radius (+ margin) from every box."""
+    for b in boxes:
+        Tinv = np.linalg.inv(b.T)
+        half = np.asarray(b.size) / 2
+        for (_, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
+            pl = ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3])
+            rows.add(box_sdf(pl, half), r + margin, ca.inf)
+
+
+def footprint_clear(
+    rs: RobotSymbols, rects: list[tuple[FloatArray, FloatArray]], rows: Rows, margin: float = 0.03
+) -> None:
+    """The base circles clear of fixture footprints: rects are (T (4, 4), size (3,)) of fixtures."""
+    z = rs.z
+    c, s = ca.cos(z[2]), ca.sin(z[2])
+    for T, size in rects:
+        R2 = T[:2, :2]
+        for cx, cy, r in rs.circles:
+            wx, wy = z[0] + c * cx - s * cy, z[1] + s * cx + c * cy
+            lx = R2[0, 0] * (wx - T[0, 3]) + R2[1, 0] * (wy - T[1, 3])
+            ly = R2[0, 1] * (wx - T[0, 3]) + R2[1, 1] * (wy - T[1, 3])
+            dx = _smooth_pos(ca.sqrt(lx * lx + 1e-9) - size[0] / 2)
+            dy = _smooth_pos(ca.sqrt(ly * ly + 1e-9) - size[1] / 2)
+            rows.add(ca.sqrt(dx * dx + dy * dy + 1e-9), r + margin, ca.inf)
+
+
+def grasp_top(
+    rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, float, float], rows: Rows, depth: float = 0.025
+) -> None:
+    """A top grasp: the tool point ``depth`` below the object's top centre, approaching straight down,
+    the fingers closing across two opposite faces (closing axis along the object's x or y)."""
+    top = T_obj[:3, 3] + np.array([0.0, 0.0, size[2] / 2 - min(depth, size[2] / 2)])
+    for i in range(3):
+        rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
+    a = rs.tool_axis(rs.manip.approach)
+    rows.add(a[0], 0.0, 0.0)
+    rows.add(a[1], 0.0, 0.0)
+    rows.add(a[2], -1.0, -0.99)  # pointing down
+    c = rs.tool_axis(rs.manip.closing)
+    ox, oy = ca.DM(T_obj[:3, 0]), ca.DM(T_obj[:3, 1])
+    rows.add(ca.dot(c, ox) * ca.dot(c, oy), 0.0, 0.0)
+
+
+def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows: Rows) -> None:
+    """A world point's x, y inside a rectangle of half extents ``half`` centred on T's origin (its axes)."""
+    R2 = T[:2, :2]
+    lx = R2[0, 0] * (p_xy[0] - T[0, 3]) + R2[1, 0] * (p_xy[1] - T[1, 3])
+    ly = R2[0, 1] * (p_xy[0] - T[0, 3]) + R2[1, 1] * (p_xy[1] - T[1, 3])
+    rows.add(lx, -half[0], half[0])
+    rows.add(ly, -half[1], half[1])

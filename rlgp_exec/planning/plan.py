@@ -1,0 +1,50 @@
+"""The planners' output: a ``Plan`` (actions, keyframes, joint paths per phase, costs, counters)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rlgp_exec.planning.validate import Phase, Validation
+from rlgp_exec.robot.model import FloatArray
+
+__all__ = ["Plan"]
+
+
+@dataclass(frozen=True)
+class Plan:
+    success: bool  # validated: collision-free replay and goal met
+    planner: str
+    actions: tuple[str, ...]
+    keyframes: FloatArray  # (K, nq) the mode-switch configurations
+    phases: tuple[Phase, ...]  # joint paths between keyframes (the first starts at the start)
+    planning_time_s: float
+    n_nlp: int  # NLPs solved (keyframe problems)
+    nodes_expanded: int  # symbolic search
+    validation: Validation | None
+    reason: str
+
+    @property
+    def base_path_length_m(self) -> float:
+        total = 0.0
+        for ph in self.phases:
+            if len(ph.path) > 1:
+                total += float(np.sum(np.linalg.norm(np.diff(ph.path[:, :2], axis=0), axis=1)))
+        return total
+
+    def summary(self) -> dict:
+        """The ``plan --json`` fields (DESIGN.md)."""
+        return {
+            "success": self.success,
+            "planner": self.planner,
+            "planning_time_s": self.planning_time_s,
+            "actions": list(self.actions),
+            "n_steps": len(self.actions),
+            "base_path_length_m": self.base_path_length_m,
+            "collision_free": None if self.validation is None else self.validation.collision_free,
+            "goal_met": None if self.validation is None else self.validation.goal_met,
+            "n_nlp": self.n_nlp,
+            "nodes_expanded": self.nodes_expanded,
+            "reason": self.reason,
+        }

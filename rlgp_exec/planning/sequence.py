@@ -1,0 +1,141 @@
+"""Geometry for one candidate action sequence: keyframes (level 2), guided paths between them from the
+reachability graph (getWaypoints), and validation by replay.
+
+Each action is approached and left vertically: the hand goes to ``APPROACH`` above its keyframe
+(position IK warm-started from the keyframe) and then straight down, and back up afterwards, so that a
+held object is carried above the support surfaces. Level 3 (full-path optimisation over T waypoints
+per phase) is not in this build: between those approach configurations the paths are the graph's
+collision-checked waypoints, and the replay decides.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
+from rlgp_exec.planning.plan import Plan
+from rlgp_exec.planning.validate import Phase, validate_plan
+from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
+from rlgp_exec.robot import load_robot
+from rlgp_exec.robot.model import FloatArray
+from rlgp_exec.scene import Scene
+
+__all__ = ["APPROACH", "SequenceGeometry"]
+
+APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
+
+log = logging.getLogger(__name__)
+
+
+class SequenceGeometry:
+    """Everything geometric the R-LGP loop asks of a scene: heuristic costs and waypoints from the
+    reachability graph, keyframe NLPs, and validated plans for candidate sequences."""
+
+    def __init__(self, scene: Scene, params: RGParams | None = None, seed: int = 0) -> None:
+        self.scene, self.seed = scene, seed
+        self.model = load_robot(scene.robot.name)
+        self.q0 = nominal_q(self.model, scene)
+        self.graph, self.graph_stats = load_or_build(scene, params=params or RGParams())
+        self.checker = WorldChecker(scene, self.model.manipulator().group)
+        self.rg = ReachabilityPlanner(self.graph, ReachIK(self.model, scene, self.q0), self.checker, rng_seed=seed)
+        self.tool = self.model.manipulator().tool_frame
+        self.n_nlp = 0
+
+    def close(self) -> None:
+        self.checker.close()
+
+    @property
+    def hand_start(self) -> FloatArray:
+        return self.model.fk(self.q0, self.tool)[:3, 3]
+
+    def heuristic_cost(self, x1: FloatArray, x2: FloatArray) -> float:
+        """heuristicCost: the reachability graph's path cost between two hand positions (inf if none)."""
+        return self.rg.query(x1, x2).cost
+
+    def _above(self, q_k: FloatArray) -> FloatArray | None:
+        """A configuration with the hand APPROACH higher than at q_k, the base where it is: the lift
+        raised when it has the travel (a straight vertical motion), else position IK on the arm."""
+        for lift in ("arm_lift_joint", "torso_lift_joint"):
+            if lift in self.model.joint_names:
+                i = self.model.index(lift)
+                if q_k[i] + APPROACH <= self.model.limits.upper[i]:
+                    q = q_k.copy()
+                    q[i] += APPROACH
+                    return None if self.checker(q) else q
+        ik = self.rg.ik
+        x = self.model.fk(q_k, self.tool)[:3, 3] + np.array([0.0, 0.0, APPROACH])
+        res = ik.solve(x, ik.z_of(q_k), fix_base=True)
+        if not res.ok or self.checker(res.q):
+            return None
+        return res.q
+
+    def plan_actions(
+        self, actions: list[Action], planner: str = "rlgp", nodes_expanded: int = 0, t_start: float | None = None
+    ) -> Plan:
+        t0 = time.perf_counter() if t_start is None else t_start
+        names = tuple(str(a) for a in actions)
+        self.n_nlp += 1
+        kf = solve_keyframes(self.model, self.scene, self.q0, actions, seed=self.seed)
+        empty = np.zeros((0, self.model.nq))
+
+        def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
+            return Plan(
+                False,
+                planner,
+                names,
+                kf.keyframes if kf.ok else empty,
+                phases,
+                time.perf_counter() - t0,
+                self.n_nlp,
+                nodes_expanded,
+                None,
+                reason,
+            )
+
+        if not kf.ok:
+            return fail(f"keyframes: {kf.reason}")
+        phases: list[Phase] = []
+        q_prev, held = self.q0, None
+        for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
+            q_pre = self._above(q_k)
+            if q_pre is None:
+                return fail(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
+            x1, x2 = self.model.fk(q_prev, self.tool)[:3, 3], self.model.fk(q_pre, self.tool)[:3, 3]
+            if held is None:
+                self.rg.carrying(None)
+            else:  # the graph's paths must clear the held object too
+                # the grasp of the previous action (a pick does not move the object)
+                T_tool_obj = np.linalg.inv(self.model.fk(kf.keyframes[k - 1], self.tool)) @ kf.object_poses[k - 1][held]
+                self.rg.carrying(np.asarray(self.scene.object(held).size), T_tool_obj)
+            try:
+                res = self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
+            finally:
+                self.rg.carrying(None)
+            if not res.ok:
+                return fail(f"no guided path to {a}: {res.status.value}: {res.reason}", tuple(phases))
+            path = np.vstack([res.path, q_k[None]])
+            phases.append(
+                Phase(
+                    path, held, grasp=a.obj if a.name == "pick" else None, release=a.obj if a.name == "place" else None
+                )
+            )
+            held = a.obj if a.name == "pick" else None
+            phases.append(Phase(np.array([q_k, q_pre]), held))  # leave vertically
+            q_prev = q_pre
+        validation = validate_plan(self.scene, phases)
+        reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
+        return Plan(
+            validation.ok,
+            planner,
+            names,
+            kf.keyframes,
+            tuple(phases),
+            time.perf_counter() - t0,
+            self.n_nlp,
+            nodes_expanded,
+            validation,
+            reason,
+        )

@@ -1,0 +1,135 @@
+"""Every plan is replayed before anyone calls it a success: PyBullet, fine resolution, with the objects.
+
+The robot follows each phase's joint path at ``step`` [rad or m] per joint; an object picked at the end
+of a phase rides with the hand (its pose relative to the tool frozen at the grasp) until it is placed.
+Collisions are checked for the robot (against the world and itself; the held object is the hand's)
+and for the held object (against everything but the robot). The goal literals are then checked in the
+final simulated state; a literal this checker cannot evaluate counts as unmet, never as met.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+
+from rlgp_exec.robot.model import FloatArray
+from rlgp_exec.scene import Scene
+from rlgp_exec.scene.types import Literal
+
+__all__ = ["Phase", "Validation", "goal_holds", "validate_plan"]
+
+ON_TOLERANCE = 0.01  # [m] an object "on" a surface: its bottom within this of the surface
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A joint path (n, nq) and what the hand holds while following it; ``grasp``/``release`` say what
+    happens to an object when the phase ends."""
+
+    path: FloatArray
+    held: str | None
+    grasp: str | None = None
+    release: str | None = None
+
+
+@dataclass(frozen=True)
+class Validation:
+    collision_free: bool
+    goal_met: bool
+    collisions: tuple[str, ...]
+    unmet: tuple[str, ...]
+    final_poses: dict[str, FloatArray]
+
+    @property
+    def ok(self) -> bool:
+        return self.collision_free and self.goal_met
+
+
+def _region_rect(scene: Scene, name: str) -> tuple[FloatArray, tuple[float, float], float] | None:
+    from rlgp_exec.planning.nlp.keyframes import _target_surface
+
+    try:
+        return _target_surface(scene, name)
+    except Exception:
+        return None
+
+
+def goal_holds(scene: Scene, literal: Literal, poses: dict[str, FloatArray]) -> tuple[bool, str]:
+    """(holds, why) for one goal literal in a state given by object poses."""
+    if literal.predicate == "on":
+        obj, target = literal.args
+        o = scene.object(obj)
+        T = poses[obj]
+        if target in poses:  # stacked on another object
+            T2, o2 = poses[target], scene.object(target)
+            rect = (T2, (o2.size[0] / 2, o2.size[1] / 2), float(T2[2, 3] + o2.size[2] / 2))
+        else:
+            rect = _region_rect(scene, target)
+            if rect is None:
+                return False, f"{literal}: unknown target {target!r}"
+        Tr, half, z = rect
+        d = np.linalg.inv(Tr) @ T[:, 3]
+        bottom = T[2, 3] - o.size[2] / 2
+        ok = abs(bottom - z) <= ON_TOLERANCE and abs(d[0]) <= half[0] and abs(d[1]) <= half[1]
+        return ok, f"{literal}: bottom {bottom - z:+.3f} m from the surface, offset ({d[0]:+.3f}, {d[1]:+.3f}) m"
+    return False, f"{literal}: the replay cannot check ({literal.predicate} ...) yet"
+
+
+def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tolerance: float = 2e-3) -> Validation:
+    from sim.world import build_world
+
+    world = build_world(scene, tags=False)
+    robot, model, client = world.robot, world.robot_model, world.client
+    tool = model.manipulator().tool_frame
+    collisions: list[str] = []
+    held_T: FloatArray | None = None
+    try:
+        for k, ph in enumerate(phases):
+            if ph.held is not None and held_T is None:
+                raise ValueError(f"phase {k} holds {ph.held} but nothing was grasped")
+            pairs = zip(ph.path[:-1], ph.path[1:], strict=True)
+            qs = np.vstack([interpolate_path(world, a, b, step) for a, b in pairs]) if len(ph.path) > 1 else ph.path
+            for q in qs:
+                robot.set_q(q)
+                if ph.held is not None:
+                    world.set_object_pose(ph.held, model.fk(q, tool) @ held_T)
+                for c in robot.contacts(tolerance):
+                    name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
+                    collisions.append(f"phase {k}: robot {c.link} ~ {name}")
+                if ph.held is not None:
+                    hb = world.objects[ph.held]
+                    for c in p.getContactPoints(bodyA=hb, physicsClientId=client):
+                        if c[2] != robot.id and c[8] < -tolerance:
+                            collisions.append(f"phase {k}: held {ph.held} ~ {world.body_name(c[2])}")
+                if collisions:
+                    break
+            if collisions:
+                break
+            q_end = ph.path[-1]
+            if ph.grasp is not None:
+                held_T = np.linalg.inv(model.fk(q_end, tool)) @ world.object_pose(ph.grasp)
+                robot.ignore_body(world.objects[ph.grasp])
+            if ph.release is not None:
+                robot.ignore_body(world.objects[ph.release], False)
+                held_T = None
+        poses = {name: world.object_pose(name) for name in world.objects}
+    finally:
+        world.close()
+    unmet = []
+    for lit in scene.goal.literals:
+        ok, why = goal_holds(scene, lit, poses)
+        if not ok:
+            unmet.append(why)
+    return Validation(
+        not collisions, not unmet and not collisions, tuple(dict.fromkeys(collisions)), tuple(unmet), poses
+    )
+
+
+def interpolate_path(world, a: FloatArray, b: FloatArray, step: float) -> FloatArray:
+    limits = world.robot_model.limits
+    d = limits.difference(b, a)
+    n = max(1, int(np.ceil(np.abs(d).max() / step)))
+    return limits.wrap(a[None] + np.linspace(0.0, 1.0, n + 1)[:, None] * d[None])

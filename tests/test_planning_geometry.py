@@ -1,0 +1,109 @@
+"""Keyframe NLP (level 2), guided paths and replay validation for candidate action sequences."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
+from rlgp_exec.planning.sequence import SequenceGeometry
+from rlgp_exec.planning.validate import Phase, validate_plan
+from rlgp_exec.reach import RGParams
+from rlgp_exec.robot import load_robot
+from rlgp_exec.scene import load_scene
+
+SORTING = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
+SEQUENCE = [
+    Action("pick", "block_blue"),
+    Action("place", "block_blue", "tray_blue"),
+    Action("pick", "block_green"),
+    Action("place", "block_green", "tray_green"),
+]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene(SORTING)
+
+
+def test_keyframes_grasp_from_above_and_place_inside_the_region(scene):
+    model = load_robot("hsr")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    res = solve_keyframes(model, scene, q0, SEQUENCE)
+    assert res.ok, res.reason
+    tool = model.manipulator().tool_frame
+    for k, a in enumerate(SEQUENCE):
+        T = model.fk(res.keyframes[k], tool)
+        approach = T[:3, :3] @ np.asarray(model.manipulator().approach)
+        assert approach[2] < -0.99  # straight down
+        before = res.object_poses[k - 1] if k else {o.name: o.T for o in scene.objects}
+        if a.name == "pick":
+            o = scene.object(a.obj)
+            top = before[a.obj][:3, 3] + [0, 0, o.size[2] / 2 - 0.025]
+            assert np.linalg.norm(T[:3, 3] - top) < 1e-3
+        else:
+            # the held object moved with the hand, and now rests upright inside the region
+            T_obj = res.object_poses[k][a.obj]
+            region = next(r for r in scene.regions if r.name == a.target)
+            fx = scene.fixture(region.on)
+            local = np.linalg.inv(fx.T) @ T_obj[:, 3]
+            assert (
+                abs(local[0] - region.offset[0]) <= region.size[0] / 2
+                and abs(local[1] - region.offset[1]) <= region.size[1] / 2
+            )
+            assert T_obj[2, 2] >= 0.999 - 1e-6
+            assert abs(T_obj[2, 3] - scene.object(a.obj).size[2] / 2 - (fx.pose[2] + fx.size[2] / 2)) < 0.005
+
+
+def test_bad_sequences_are_errors_naming_the_action(scene):
+    model = load_robot("hsr")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    with pytest.raises(RlgpError, match="without holding"):
+        solve_keyframes(model, scene, q0, [Action("place", "block_blue", "tray_blue")])
+    with pytest.raises(RlgpError, match="unknown object"):
+        solve_keyframes(model, scene, q0, [Action("pick", "unicorn")])
+    with pytest.raises(RlgpError, match="not a region or fixture"):
+        solve_keyframes(model, scene, q0, [Action("pick", "block_blue"), Action("place", "block_blue", "moon")])
+
+
+def test_a_sequence_becomes_a_validated_plan(scene):
+    geo = SequenceGeometry(scene, RGParams(samples=120, seed=2))
+    try:
+        plan = geo.plan_actions(SEQUENCE)
+    finally:
+        geo.close()
+    assert plan.success, plan.reason
+    assert plan.validation is not None and plan.validation.collision_free and plan.validation.goal_met
+    # per action: a guided path down to the keyframe, then straight up again
+    assert [p.grasp for p in plan.phases] == ["block_blue", None, None, None, "block_green", None, None, None]
+    assert [p.release for p in plan.phases] == [None, None, "block_blue", None, None, None, "block_green", None]
+    assert [p.held for p in plan.phases] == [
+        None,
+        "block_blue",
+        "block_blue",
+        None,
+        None,
+        "block_green",
+        "block_green",
+        None,
+    ]
+    for k, ph in enumerate(plan.phases):
+        if k % 2 == 0:
+            assert np.allclose(ph.path[-1], plan.keyframes[k // 2])  # the keyframes are reached exactly
+        if k:
+            assert np.allclose(ph.path[0], plan.phases[k - 1].path[-1])  # phases meet
+    assert plan.summary()["n_steps"] == 4 and plan.base_path_length_m > 1.0
+
+
+def test_the_replay_catches_collisions_and_unmet_goals(scene):
+    model = load_robot("hsr")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    through_table = q0.copy()
+    through_table[1] = 0.0  # drive the base into the middle table
+    v = validate_plan(scene, [Phase(np.array([q0, through_table]), None)])
+    assert not v.collision_free and any("table_mid" in c for c in v.collisions)
+    standing = validate_plan(scene, [Phase(np.array([q0, q0]), None)])
+    assert standing.collision_free and not standing.goal_met and len(standing.unmet) == 2
