@@ -89,7 +89,7 @@ def look_around(
     feasible: Callable[[FloatArray], bool] | None = None,
     head_views_per_object: int = 3,
     min_observations: int = 2,
-    target_std_m: float = 0.004,
+    target_std_m: float = 0.006,
 ) -> LookAroundResult:
     """Take pictures until every object in ``names`` has been seen in ``min_observations`` views and its
     fused estimate's position error figure is at most ``target_std_m``, or ``max_views`` run out.

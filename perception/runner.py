@@ -59,7 +59,7 @@ def perceive_scene(
     seed: int = 0,
     noise_std: float = 2.0,
     detector: str = "opencv",
-    max_views: int = 16,
+    max_views: int = 30,
 ) -> SimPerception:
     """Build ``scene`` in PyBullet, optionally move its objects away from the file's poses, look around
     with the robot's head camera and compare the perceived poses with the simulated truth."""
@@ -89,11 +89,15 @@ def perceive_scene(
         )
         upd = scene_from_estimates(scene, per.tracker, capture.stamp)
         errs, yaw = {}, {}
-        for name in res.seen:
-            T = per.tracker.estimate(name).T_world_object  # type: ignore[union-attr]
+        for name in truth:
+            est = per.tracker.estimate(name)
+            if est is None:
+                continue
+            T = est.T_world_object
             errs[name] = float(np.linalg.norm(T[:3, 3] - truth[name][:3, 3]) * 1e3)
             yaw[name] = math.degrees(rotation_angle(truth[name][:3, :3].T @ T[:3, :3]))
-        return SimPerception(errs, yaw, res.missing, len(res.views), upd.scene, upd.uncertain)
+        missing = frozenset(n for n in truth if per.tracker.estimate(n) is None)  # never seen at all
+        return SimPerception(errs, yaw, missing, len(res.views), upd.scene, upd.uncertain)
     finally:
         world.close()
 

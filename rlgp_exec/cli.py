@@ -23,7 +23,6 @@ log = logging.getLogger("rlgp_exec")
 # Subcommands of the DESIGN.md contract whose implementation has not landed yet, with the issue
 # that brings it. They parse their arguments and exit 2 with this message: never a fake result.
 PENDING: dict[str, str] = {
-    "plan": "the R-LGP and GNPP planners (issues 4 and 5)",
     "run": "the executive loop (issue 9)",
     "daemon": "the on-robot daemon (issue 9)",
     "replay": "recordings (issue 9)",
@@ -106,6 +105,30 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
         if value:
             argv += [flag, value]
     return server_main(argv)
+
+
+# ---------------------------------------------------------------------------------- plan
+def cmd_plan(args: argparse.Namespace) -> int:
+    from rlgp_exec.planning.rlgp import plan_scene
+    from rlgp_exec.scene import load_scene, randomize
+
+    scene = load_scene(args.scene)
+    if args.seed is not None:
+        scene = randomize(scene, args.seed)
+    plan = plan_scene(scene, args.planner, seed=args.seed or 0)
+    summary = plan.summary()
+    print(
+        f"{scene.name}: {args.planner} {'found a valid plan' if plan.success else 'failed'} in "
+        f"{plan.planning_time_s:.2f} s ({plan.n_nlp} NLPs, {plan.nodes_expanded} nodes expanded)"
+    )
+    for a in plan.actions:
+        print(f"  {a}")
+    if plan.success:
+        print(f"  base path {plan.base_path_length_m:.2f} m; replay: collision-free, goal met")
+    else:
+        print(f"  reason: {plan.reason}")
+    _write_json(args.json, summary)
+    return 0 if plan.success else 1
 
 
 # ---------------------------------------------------------------------------------- rg
@@ -221,11 +244,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("plan", help="plan a scene's task")
     s.add_argument("scene")
-    s.add_argument("--planner", default="rlgp")
-    s.add_argument("--seed", type=int)
+    s.add_argument(
+        "--planner",
+        choices=["rlgp", "lgp"],
+        default="rlgp",
+        help="rlgp: reachability-graph heuristic; lgp: distance-only baseline (GNPP: not yet)",
+    )
+    s.add_argument("--seed", type=int, help="randomise object poses with this seed")
     s.add_argument("--json")
-    s.add_argument("--plot")
-    s.set_defaults(func=_pending("plan"))
+    s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("run", help="plan and execute a scene's task")
     s.add_argument("scene")

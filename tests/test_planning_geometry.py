@@ -38,7 +38,8 @@ def test_keyframes_grasp_from_above_and_place_inside_the_region(scene):
     for k, a in enumerate(SEQUENCE):
         T = model.fk(res.keyframes[k], tool)
         approach = T[:3, :3] @ np.asarray(model.manipulator().approach)
-        assert approach[2] < -0.99  # straight down
+        if a.name == "pick":
+            assert approach[2] <= -np.cos(0.6) + 1e-6  # from above, tilted at most 0.6 rad
         before = res.object_poses[k - 1] if k else {o.name: o.T for o in scene.objects}
         if a.name == "pick":
             o = scene.object(a.obj)
@@ -70,7 +71,7 @@ def test_bad_sequences_are_errors_naming_the_action(scene):
 
 
 def test_a_sequence_becomes_a_validated_plan(scene):
-    geo = SequenceGeometry(scene, RGParams(samples=120, seed=2))
+    geo = SequenceGeometry(scene, RGParams())
     try:
         plan = geo.plan_actions(SEQUENCE)
     finally:

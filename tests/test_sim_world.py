@@ -108,7 +108,7 @@ def test_cli_reports_bad_scene_files_with_exit_code_2(tmp_path, capsys):
 
 
 def test_pending_subcommands_say_what_is_missing(capsys):
-    assert main(["plan", str(scene_path("sorting_pr2"))]) == 2
+    assert main(["run", str(scene_path("sorting_pr2"))]) == 2
     assert "issue" in capsys.readouterr().err
 
 
@@ -118,6 +118,7 @@ def test_demo_runs_every_available_stage_and_writes_its_pictures(tmp_path):
     report = run_demo(tmp_path, seed=1)
     assert report.ok, report.text()
     ran = [s.name for s in report.stages if s.ok]
-    assert ran == ["scene", "world", "render", "perceive", "reach", "time", "execute"]
+    assert ran == ["scene", "world", "render", "perceive", "plan", "time+act"]
+    assert "goal met in the simulation" in report.text()
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
     assert "not in this build" in report.text()  # missing layers are reported, never faked

@@ -52,8 +52,9 @@ class SequenceGeometry:
         return self.model.fk(self.q0, self.tool)[:3, 3]
 
     def heuristic_cost(self, x1: FloatArray, x2: FloatArray) -> float:
-        """heuristicCost: the reachability graph's path cost between two hand positions (inf if none)."""
-        return self.rg.query(x1, x2).cost
+        """heuristicCost: the reachability graph's path cost between two hand positions (inf if none),
+        estimated on the graph as it stands (no IK or collision checks: the symbolic search asks often)."""
+        return self.rg.estimate(x1, x2)
 
     def _above(self, q_k: FloatArray) -> FloatArray | None:
         """A configuration with the hand APPROACH higher than at q_k, the base where it is: the lift
@@ -75,10 +76,23 @@ class SequenceGeometry:
     def plan_actions(
         self, actions: list[Action], planner: str = "rlgp", nodes_expanded: int = 0, t_start: float | None = None
     ) -> Plan:
+        """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
+        leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails."""
         t0 = time.perf_counter() if t_start is None else t_start
+        result = None
+        for tilt in (0.0, 0.6):
+            result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
+            if result.success:
+                break
+        assert result is not None
+        return result
+
+    def _attempt(self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
-        kf = solve_keyframes(self.model, self.scene, self.q0, actions, seed=self.seed)
+        kf = solve_keyframes(
+            self.model, self.scene, self.q0, actions, seed=self.seed, in_collision=self.checker, max_tilt=tilt
+        )
         empty = np.zeros((0, self.model.nq))
 
         def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
@@ -96,7 +110,7 @@ class SequenceGeometry:
             )
 
         if not kf.ok:
-            return fail(f"keyframes: {kf.reason}")
+            return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
         phases: list[Phase] = []
         q_prev, held = self.q0, None
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
@@ -106,8 +120,7 @@ class SequenceGeometry:
             x1, x2 = self.model.fk(q_prev, self.tool)[:3, 3], self.model.fk(q_pre, self.tool)[:3, 3]
             if held is None:
                 self.rg.carrying(None)
-            else:  # the graph's paths must clear the held object too
-                # the grasp of the previous action (a pick does not move the object)
+            else:  # the graph's paths must clear the held object too (grasped at the previous keyframe)
                 T_tool_obj = np.linalg.inv(self.model.fk(kf.keyframes[k - 1], self.tool)) @ kf.object_poses[k - 1][held]
                 self.rg.carrying(np.asarray(self.scene.object(held).size), T_tool_obj)
             try:
@@ -116,12 +129,8 @@ class SequenceGeometry:
                 self.rg.carrying(None)
             if not res.ok:
                 return fail(f"no guided path to {a}: {res.status.value}: {res.reason}", tuple(phases))
-            path = np.vstack([res.path, q_k[None]])
-            phases.append(
-                Phase(
-                    path, held, grasp=a.obj if a.name == "pick" else None, release=a.obj if a.name == "place" else None
-                )
-            )
+            grasp, release = (a.obj, None) if a.name == "pick" else (None, a.obj)
+            phases.append(Phase(np.vstack([res.path, q_k[None]]), held, grasp=grasp, release=release))
             held = a.obj if a.name == "pick" else None
             phases.append(Phase(np.array([q_k, q_pre]), held))  # leave vertically
             q_prev = q_pre

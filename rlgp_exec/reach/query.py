@@ -75,6 +75,7 @@ class ReachabilityPlanner:
         self.counters = {"edge_checks": 0, "edges_removed": 0, "nodes_added": 0, "enhancements": 0, "ompl_paths": 0}
         self.ompl_fallback, self.ompl_timeout = True, 1.0
         self._carry_verdicts: dict[tuple[int, int], bool] = {}
+        self._estimates: dict[tuple, float] = {}
 
     # ------------------------------------------------------------------ the library
     @staticmethod
@@ -85,6 +86,24 @@ class ReachabilityPlanner:
     def heuristic_cost(self, x1: FloatArray, x2: FloatArray) -> float:
         """heuristicCost (Algorithm 1): h of the path, inf if there is none."""
         return self.query(x1, x2).cost
+
+    def estimate(self, x1: FloatArray, x2: FloatArray) -> float:
+        """A cheap heuristic cost: both ends snapped to their nearest nodes, Dijkstra over the graph as
+        it stands (edges not yet checked count at their cost), plus the snapping distances. No IK, no
+        collision checks: for ranking symbolic candidates; ``query`` certifies the chosen one."""
+        key, _ = self._key(np.asarray(x1, float), np.asarray(x2, float))
+        if key in self._estimates:
+            return self._estimates[key]
+        a, b = self.g.nearest(x1, 1), self.g.nearest(x2, 1)
+        if not a or not b:
+            return math.inf
+        snap = self.g.params.w_x * (np.linalg.norm(self.g.X[a[0]] - x1) + np.linalg.norm(self.g.X[b[0]] - x2))
+        try:
+            h = nx.dijkstra_path_length(self.g.G, a[0], b[0], weight="weight") + float(snap)
+        except nx.NetworkXNoPath:
+            h = math.inf
+        self._estimates[key] = h
+        return h
 
     def waypoints(self, x1: FloatArray, x2: FloatArray) -> FloatArray:
         """getWaypoints (Algorithm 1): the path's configurations (n, nq); empty if there is none."""

@@ -92,20 +92,27 @@ def footprint_clear(
 
 
 def grasp_top(
-    rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, float, float], rows: Rows, depth: float = 0.025
-) -> None:
-    """A top grasp: the tool point ``depth`` below the object's top centre, approaching straight down,
-    the fingers closing across two opposite faces (closing axis along the object's x or y)."""
+    rs: RobotSymbols,
+    T_obj: FloatArray,
+    size: tuple[float, float, float],
+    rows: Rows,
+    depth: float = 0.025,
+    max_tilt: float = 0.6,
+) -> ca.SX:
+    """A grasp from above: the tool point ``depth`` below the object's top centre, the approach axis
+    pointing down within ``max_tilt`` [rad] of vertical (a tilted hand reaches further across a
+    table), the fingers closing horizontally across two opposite faces (along the object's x or y).
+    Returns the tilt measure 1 + a_z (0 when vertical), for the objective to prefer upright hands."""
     top = T_obj[:3, 3] + np.array([0.0, 0.0, size[2] / 2 - min(depth, size[2] / 2)])
     for i in range(3):
         rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)
-    rows.add(a[0], 0.0, 0.0)
-    rows.add(a[1], 0.0, 0.0)
-    rows.add(a[2], -1.0, -0.99)  # pointing down
+    rows.add(a[2], -1.0, -float(np.cos(max_tilt)))
     c = rs.tool_axis(rs.manip.closing)
+    rows.add(c[2], 0.0, 0.0)
     ox, oy = ca.DM(T_obj[:3, 0]), ca.DM(T_obj[:3, 1])
     rows.add(ca.dot(c, ox) * ca.dot(c, oy), 0.0, 0.0)
+    return 1.0 + a[2]
 
 
 def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows: Rows) -> None:

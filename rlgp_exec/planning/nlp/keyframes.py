@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
@@ -31,7 +32,9 @@ __all__ = ["Action", "KeyframeResult", "solve_keyframes"]
 
 log = logging.getLogger(__name__)
 W_BASE = 3.0  # base motion weighs more than arm motion in the objective
+W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 FEAS_TOL = 1e-4
+ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
 PLACE_LIFT = 0.002  # [m] an object is released this far above its support
 
 
@@ -89,7 +92,12 @@ def solve_keyframes(
     actions: list[Action],
     manipulator: str | None = None,
     seed: int = 0,
+    in_collision: Callable[[FloatArray], bool] | None = None,
+    max_tilt: float = 0.0,
 ) -> KeyframeResult:
+    """Solve the keyframe NLP (several initial guesses); ``in_collision(q)`` (the full PyBullet check,
+    self-collisions included, which the NLP's shapes do not model) rejects a solution. ``max_tilt``
+    [rad]: how far from vertical a grasp's approach may lean."""
     t0 = time.perf_counter()
     objs = {o.name: o for o in scene.objects}
     for a in actions:
@@ -109,6 +117,7 @@ def solve_keyframes(
     grasp: ca.SX | None = None
     targets: list[FloatArray] = []
     labels: list[str] = []  # one per constraint row, for the failure reason
+    tilts: list[ca.SX] = []  # 1 + a_z of each grasp: a vertical hand carries objects most safely
     rng = np.random.default_rng(seed)
     for k, a in enumerate(actions):
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k])
@@ -124,7 +133,7 @@ def solve_keyframes(
         if a.name == "pick":
             if held is not None:
                 raise RlgpError(f"keyframe NLP: {a} while holding {held}")
-            grasp_top(rs, poses[a.obj], o.size, rows)
+            tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held = a.obj
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
@@ -148,6 +157,7 @@ def solve_keyframes(
         d = Z[:, k] - prev
         cost += W_BASE * ca.sumsqr(d[:2]) + W_BASE * d[2] ** 2 + ca.sumsqr(d[3:])
         prev = Z[:, k]
+    cost += W_TILT * sum(tilts)
     nlp = {"x": ca.vec(Z), "f": cost, "g": ca.vertcat(*rows.g)}
     solver = ca.nlpsol(
         "keyframes",
@@ -158,7 +168,7 @@ def solve_keyframes(
     lbx = np.tile(ik.lo, K)
     ubx = np.tile(ik.hi, K)
     best = None
-    for _attempt in range(4):  # initial guesses: each keyframe from position IK at its target
+    for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
         init = []
         for x in targets:
             yaw = rng.uniform(-math.pi, math.pi)
@@ -167,9 +177,13 @@ def solve_keyframes(
         res = solver(x0=np.concatenate(init), lbx=lbx, ubx=ubx, lbg=rows.lower, ubg=rows.upper)
         g = np.asarray(res["g"]).reshape(-1)
         viol = float(np.max(np.r_[np.asarray(rows.lower) - g, g - np.asarray(rows.upper), 0.0]))
-        worst = (
-            labels[int(np.argmax(np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))))] if g.size else ""
-        )
+        over = np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))
+        worst = labels[int(np.argmax(over))] if g.size else ""
+        if viol <= FEAS_TOL and in_collision is not None:
+            zk = np.asarray(ca.reshape(res["x"], n, K)).T
+            bad = [k for k in range(K) if in_collision(ik.q_of(zk[k]))]
+            if bad:  # feasible for the NLP, not for the robot: try another start
+                viol, worst = 1.0, f"{actions[bad[0]]} keyframe collides in PyBullet (self or world)"
         cand = (viol, float(res["f"]), np.asarray(res["x"]).reshape(-1), worst)
         if best is None or (cand[0] < best[0] - 1e-9) or (cand[0] <= FEAS_TOL and cand[1] < best[1]):
             best = cand
