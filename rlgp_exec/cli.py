@@ -79,10 +79,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from rlgp_exec.hal.bench import run_hal_bench
 
         result = run_hal_bench()
+    elif Path(task).suffix == ".toml":
+        from rlgp_exec.planning.bench import run_planner_bench
+
+        planners = (args.planners or "rlgp,lgp").split(",")
+        result = run_planner_bench(task, planners, args.seeds)
     else:
         print(
-            f"rlgp-exec bench {task}: planner/reachability/HAL/executive benchmarks are not available in this "
-            "build (issues 4, 5, 9); available: timing, perception, hal, reachability",
+            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, reachability SCENE, "
+            "or a scene file (planners side by side: --planners rlgp,lgp --seeds N)",
             file=sys.stderr,
         )
         return 2

@@ -235,7 +235,7 @@ def test_scene_update_uses_fresh_upright_estimates_and_flags_the_rest():
 
 
 # ------------------------------------------------------------------------------ perception to scene
-def test_perturbed_objects_in_sorting_hsr_are_recovered_within_5_mm():
+def test_perturbed_objects_in_sorting_hsr_are_recovered_within_5_mm_and_planned_on():
     scene = load_scene(SCENES / "sorting_hsr.toml")
     res = perceive_scene(scene, perturb_m=0.05, seed=4, noise_std=2.0)
     assert not res.missing
@@ -243,6 +243,11 @@ def test_perturbed_objects_in_sorting_hsr_are_recovered_within_5_mm():
     assert max(res.yaw_errors_deg.values()) < 2.0
     moved = [n for n in res.errors_mm if res.scene.object(n).pose != scene.object(n).pose]
     assert sorted(moved) == ["block_blue", "block_green"] and not res.uncertain
+    # ... and the plan built from the perceived scene is valid under replay
+    from rlgp_exec.planning.rlgp import plan_scene
+
+    plan = plan_scene(res.scene, "rlgp")
+    assert plan.success and plan.validation is not None and plan.validation.ok, plan.reason
 
 
 def test_noisy_blurred_images_still_give_millimetre_poses(world):

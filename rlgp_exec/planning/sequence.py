@@ -91,7 +91,13 @@ class SequenceGeometry:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
         kf = solve_keyframes(
-            self.model, self.scene, self.q0, actions, seed=self.seed, in_collision=self.checker, max_tilt=tilt
+            self.model,
+            self.scene,
+            self.q0,
+            actions,
+            seed=self.seed,
+            in_collision=self.checker.penetrates,
+            max_tilt=tilt,
         )
         empty = np.zeros((0, self.model.nq))
 

@@ -84,6 +84,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     world = build_world(scene, tags=False)
     robot, model, client = world.robot, world.robot_model, world.client
     tool = model.manipulator().tool_frame
+    fingers = set(model.manipulator().links)
     collisions: list[str] = []
     held_T: FloatArray | None = None
     try:
@@ -98,6 +99,8 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                     world.set_object_pose(ph.held, model.fk(q, tool) @ held_T)
                 for c in robot.contacts(tolerance):
                     name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
+                    if ph.grasp is not None and name == ph.grasp and c.link in fingers:
+                        continue  # the fingers close round the object they are about to grasp
                     collisions.append(f"phase {k}: robot {c.link} ~ {name}")
                 if ph.held is not None:
                     hb = world.objects[ph.held]

@@ -111,6 +111,12 @@ class WorldChecker:
         self.calls += 1
         return self.distance(q) < self.clearance or self.self_collision(q)
 
+    def penetrates(self, q: FloatArray) -> bool:
+        """True when q penetrates a fixture or itself (no clearance asked: a grasp may touch the table's
+        air gap; the graph's own nodes and edges keep CLEARANCE)."""
+        self.calls += 1
+        return self.distance(q) < 0.0 or self.self_collision(q)
+
     def edge_collides(self, q1: FloatArray, q2: FloatArray) -> bool:
         """True when the straight motion q1 -> q2 (yaw the short way) comes within CLEARANCE of a
         fixture or self-collides."""
