@@ -56,22 +56,33 @@ class SequenceGeometry:
         estimated on the graph as it stands (no IK or collision checks: the symbolic search asks often)."""
         return self.rg.estimate(x1, x2)
 
-    def _above(self, q_k: FloatArray) -> FloatArray | None:
-        """A configuration with the hand APPROACH higher than at q_k, the base where it is: the lift
-        raised when it has the travel (a straight vertical motion), else position IK on the arm."""
+    def _above(self, q_k: FloatArray) -> list[FloatArray] | None:
+        """Configurations lifting the hand APPROACH straight up from q_k, the base where it is: the lift
+        raised when it has the travel (one vertical motion), else the arm alone (differential IK, the hand
+        keeping its orientation), as waypoints 3 cm apart."""
         for lift in ("arm_lift_joint", "torso_lift_joint"):
             if lift in self.model.joint_names:
                 i = self.model.index(lift)
                 if q_k[i] + APPROACH <= self.model.limits.upper[i]:
                     q = q_k.copy()
                     q[i] += APPROACH
-                    return None if self.checker(q) else q
-        ik = self.rg.ik
-        x = self.model.fk(q_k, self.tool)[:3, 3] + np.array([0.0, 0.0, APPROACH])
-        res = ik.solve(x, ik.z_of(q_k), fix_base=True)
-        if not res.ok or self.checker(res.q):
-            return None
-        return res.q
+                    return None if self.checker(q) else [q]
+        # differential IK on the arm: the tool rises along world z without turning (a held object keeps
+        # its attitude), 1 cm per step, re-linearised at every step
+        arm = np.array(self.model.group(self.model.manipulator().group))
+        lo, hi = self.model.limits.lower[arm], self.model.limits.upper[arm]
+        target = np.r_[0.0, 0.0, 0.01, 0.0, 0.0, 0.0]
+        q, chain = q_k.copy(), []
+        for step in range(int(round(APPROACH / 0.01))):
+            J = self.model.jacobian(q, self.tool)[:, arm]
+            dq = np.linalg.lstsq(J, target, rcond=1e-6)[0]
+            q = q.copy()
+            q[arm] = q[arm] + dq
+            if np.any(q[arm] < lo - 1e-9) or np.any(q[arm] > hi + 1e-9) or self.checker.penetrates(q):
+                return None
+            if step % 3 == 2:
+                chain.append(q)
+        return None if self.checker(chain[-1]) else chain
 
     def plan_actions(
         self, actions: list[Action], planner: str = "rlgp", nodes_expanded: int = 0, t_start: float | None = None
@@ -120,9 +131,10 @@ class SequenceGeometry:
         phases: list[Phase] = []
         q_prev, held = self.q0, None
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
-            q_pre = self._above(q_k)
-            if q_pre is None:
+            up = self._above(q_k)
+            if up is None:
                 return fail(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
+            q_pre = up[-1]
             x1, x2 = self.model.fk(q_prev, self.tool)[:3, 3], self.model.fk(q_pre, self.tool)[:3, 3]
             if held is None:
                 self.rg.carrying(None)
@@ -136,9 +148,10 @@ class SequenceGeometry:
             if not res.ok:
                 return fail(f"no guided path to {a}: {res.status.value}: {res.reason}", tuple(phases))
             grasp, release = (a.obj, None) if a.name == "pick" else (None, a.obj)
-            phases.append(Phase(np.vstack([res.path, q_k[None]]), held, grasp=grasp, release=release))
+            down = np.vstack([res.path, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
+            phases.append(Phase(down, held, grasp=grasp, release=release))
             held = a.obj if a.name == "pick" else None
-            phases.append(Phase(np.array([q_k, q_pre]), held))  # leave vertically
+            phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically
             q_prev = q_pre
         validation = validate_plan(self.scene, phases)
         reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])

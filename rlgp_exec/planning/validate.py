@@ -87,6 +87,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     fingers = set(model.manipulator().links)
     collisions: list[str] = []
     held_T: FloatArray | None = None
+    held_rest = 0.0  # [m] the held object's penetration into its support when it was grasped
     try:
         for k, ph in enumerate(phases):
             if ph.held is not None and held_T is None:
@@ -105,7 +106,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                 if ph.held is not None:
                     hb = world.objects[ph.held]
                     for c in p.getContactPoints(bodyA=hb, physicsClientId=client):
-                        if c[2] != robot.id and c[8] < -tolerance:
+                        if c[2] != robot.id and c[8] < held_rest - tolerance:
                             collisions.append(f"phase {k}: held {ph.held} ~ {world.body_name(c[2])}")
                 if collisions:
                     break
@@ -115,6 +116,11 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
             if ph.grasp is not None:
                 held_T = np.linalg.inv(model.fk(q_end, tool)) @ world.object_pose(ph.grasp)
                 robot.ignore_body(world.objects[ph.grasp])
+                # an object may rest a little sunk into its support (scene tolerance): lifting it off
+                # must not count that as a collision, going deeper must
+                p.performCollisionDetection(physicsClientId=client)
+                held_rest = min([0.0] + [c[8] for c in p.getContactPoints(bodyA=world.objects[ph.grasp],
+                                                                          physicsClientId=client) if c[2] != robot.id])
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
                 held_T = None

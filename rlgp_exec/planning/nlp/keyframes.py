@@ -35,7 +35,7 @@ W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
-PLACE_LIFT = 0.002  # [m] an object is released this far above its support
+PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 
 
 @dataclass(frozen=True)
