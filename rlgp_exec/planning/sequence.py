@@ -73,7 +73,7 @@ class SequenceGeometry:
         lo, hi = self.model.limits.lower[arm], self.model.limits.upper[arm]
         target = np.r_[0.0, 0.0, 0.01, 0.0, 0.0, 0.0]
         q, chain = q_k.copy(), []
-        for step in range(int(round(APPROACH / 0.01))):
+        for step in range(round(APPROACH / 0.01)):
             J = self.model.jacobian(q, self.tool)[:, arm]
             dq = np.linalg.lstsq(J, target, rcond=1e-6)[0]
             q = q.copy()

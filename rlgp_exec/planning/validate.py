@@ -119,8 +119,14 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                 # an object may rest a little sunk into its support (scene tolerance): lifting it off
                 # must not count that as a collision, going deeper must
                 p.performCollisionDetection(physicsClientId=client)
-                held_rest = min([0.0] + [c[8] for c in p.getContactPoints(bodyA=world.objects[ph.grasp],
-                                                                          physicsClientId=client) if c[2] != robot.id])
+                held_rest = min(
+                    [0.0]
+                    + [
+                        c[8]
+                        for c in p.getContactPoints(bodyA=world.objects[ph.grasp], physicsClientId=client)
+                        if c[2] != robot.id
+                    ]
+                )
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
                 held_T = None
