@@ -10,8 +10,10 @@ collision-checked waypoints, and the replay decides.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -84,19 +86,36 @@ class SequenceGeometry:
                 chain.append(q)
         return None if self.checker(chain[-1]) else chain
 
+    def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
+        """The transport posture: raise the lift to the top, drive, lower it (three straight motions,
+        each checked exactly, with the held object if there is one); None if any is blocked."""
+        for lift in ("arm_lift_joint", "torso_lift_joint"):
+            if lift in self.model.joint_names:
+                i = self.model.index(lift)
+                top = self.model.limits.upper[i] - 0.01
+                a, b = q1.copy(), q2.copy()
+                a[i], b[i] = max(a[i], top), max(b[i], top)
+                path = np.array([q1, a, b, q2])
+                if self.checker(a) or self.checker(b):
+                    return None
+                if any(self.checker.edge_collides(u, v) for u, v in itertools.pairwise(path)):
+                    return None
+                return path
+        return None
+
     def plan_actions(
         self, actions: list[Action], planner: str = "rlgp", nodes_expanded: int = 0, t_start: float | None = None
     ) -> Plan:
         """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
         leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails."""
         t0 = time.perf_counter() if t_start is None else t_start
-        result = None
+        reasons = []
         for tilt in (0.0, 0.6):
             result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
             if result.success:
-                break
-        assert result is not None
-        return result
+                return result
+            reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
+        return replace(result, reason=" / ".join(reasons))
 
     def _attempt(self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float) -> Plan:
         names = tuple(str(a) for a in actions)
@@ -142,13 +161,15 @@ class SequenceGeometry:
                 T_tool_obj = np.linalg.inv(self.model.fk(kf.keyframes[k - 1], self.tool)) @ kf.object_poses[k - 1][held]
                 self.rg.carrying(np.asarray(self.scene.object(held).size), T_tool_obj)
             try:
-                res = self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
+                transport = self._transport(q_prev, q_pre)
+                res = None if transport is not None else self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
             finally:
                 self.rg.carrying(None)
-            if not res.ok:
+            if res is not None and not res.ok:
                 return fail(f"no guided path to {a}: {res.status.value}: {res.reason}", tuple(phases))
+            guided = transport if transport is not None else res.path  # type: ignore[union-attr]
             grasp, release = (a.obj, None) if a.name == "pick" else (None, a.obj)
-            down = np.vstack([res.path, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
+            down = np.vstack([guided, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
             phases.append(Phase(down, held, grasp=grasp, release=release))
             held = a.obj if a.name == "pick" else None
             phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically

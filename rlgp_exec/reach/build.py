@@ -15,7 +15,7 @@ import math
 import multiprocessing as mp
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +65,8 @@ def workspace_box(scene: Scene, params: RGParams) -> tuple[FloatArray, FloatArra
             for sy in (-1, 1):
                 pts.append((fx.T @ np.array([sx * hx, sy * hy, 0.0, 1.0]))[:2])
     pts = np.array(pts)
-    zs = [s.z for s in support_surfaces(scene)]
+    # fixture surfaces only: the graph (and its cache key) must not depend on where the objects are
+    zs = [s.z for s in support_surfaces(replace(scene, objects=()))]
     lo = np.r_[pts.min(axis=0) - params.margin_xy, min(zs) + 0.03]
     hi = np.r_[pts.max(axis=0) + params.margin_xy, max(zs) + params.z_above]
     return lo, hi

@@ -24,6 +24,19 @@ OMPL_PLANNERS = ("RRTConnect", "PRM")
 OMPL_CLEARANCE = 3 * CLEARANCE  # [m] required of OMPL's states
 
 
+_SEEDED: list[bool] = []
+
+
+def _seed_once(seed: int = 1) -> None:
+    """OMPL's random generator, seeded once per process (it can only be seeded before first use), so
+    that a planning run is repeatable when it is not cut short by its time limit."""
+    if not _SEEDED:
+        from ompl import util as ou
+
+        ou.RNG.setSeed(seed)
+        _SEEDED.append(True)
+
+
 def plan_ompl(
     checker: WorldChecker,
     plan_idx: FloatArray,
@@ -37,6 +50,8 @@ def plan_ompl(
     """A collision-free path (n, nq) from q1 to q2, or None (timeout, or no certifiable path)."""
     from ompl import base as ob
     from ompl import geometric as og
+
+    _seed_once()
 
     if planner not in OMPL_PLANNERS:
         raise ValueError(f"unknown OMPL planner {planner!r}; valid: {list(OMPL_PLANNERS)}")

@@ -73,7 +73,7 @@ class ReachabilityPlanner:
         self.rng = np.random.default_rng(rng_seed)
         self.library: dict[tuple, tuple[FloatArray, float]] = {}
         self.counters = {"edge_checks": 0, "edges_removed": 0, "nodes_added": 0, "enhancements": 0, "ompl_paths": 0}
-        self.ompl_fallback, self.ompl_timeout = True, 1.0
+        self.ompl_fallback, self.ompl_timeout = True, 3.0
         self._carry_verdicts: dict[tuple[int, int], bool] = {}
         self._estimates: dict[tuple, float] = {}
 
@@ -253,6 +253,18 @@ class ReachabilityPlanner:
         if q1 is None and q2 is None and key in self.library:
             path, cost = self.library[key]
             return RGPath(QueryStatus.OK, path[::-1] if flipped else path, cost, True, (time.perf_counter() - t0) * 1e3)
+        if q1 is not None and q2 is not None and not self.in_collision.edge_collides(q1, q2):
+            # both ends given and the straight motion between them is free: nothing to search
+            self.counters["edge_checks"] += 1
+            path = np.array([q1, q2])
+            return RGPath(
+                QueryStatus.OK,
+                path,
+                self.g.q_distance(q1, q2) * self.g.params.w_q,
+                False,
+                (time.perf_counter() - t0) * 1e3,
+                "direct",
+            )
         a = self.insert(x1, q1)
         if a is None:
             return RGPath(
