@@ -45,7 +45,7 @@ from rlgp_exec.timing.trajectory import (
 __all__ = ["MAX_RETRIES", "ConstAccelPiece", "PchipPath", "time_parameterize", "time_parameterize_phases"]
 
 log = logging.getLogger(__name__)
-logging.getLogger("toppra").setLevel(logging.WARNING)
+logging.getLogger("toppra").setLevel(logging.ERROR)  # its uncontrollable-grid warning is our fallback path
 
 MAX_RETRIES = 3
 CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
