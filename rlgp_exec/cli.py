@@ -114,13 +114,13 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- plan
 def cmd_plan(args: argparse.Namespace) -> int:
-    from rlgp_exec.planning.rlgp import plan_scene
+    from rlgp_exec.planning.registry import plan as run_planner
     from rlgp_exec.scene import load_scene, randomize
 
     scene = load_scene(args.scene)
     if args.seed is not None:
         scene = randomize(scene, args.seed)
-    plan = plan_scene(scene, args.planner, seed=args.seed or 0)
+    plan = run_planner(scene, args.planner, seed=args.seed or 0)
     summary = plan.summary()
     print(
         f"{scene.name}: {args.planner} {'found a valid plan' if plan.success else 'failed'} in "
@@ -251,9 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene")
     s.add_argument(
         "--planner",
-        choices=["rlgp", "lgp"],
         default="rlgp",
-        help="rlgp: reachability-graph heuristic; lgp: distance-only baseline (GNPP: not yet)",
+        help="rlgp: reachability-graph heuristic; lgp: distance-only baseline; gnpp and its ablations "
+        "(unknown names list the valid ones)",
     )
     s.add_argument("--seed", type=int, help="randomise object poses with this seed")
     s.add_argument("--json")

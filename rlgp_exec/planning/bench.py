@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rlgp_exec.planning.rlgp import PLANNERS, plan_scene
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
 from rlgp_exec.scene import load_scene, randomize
 
@@ -28,9 +29,10 @@ def _median(xs: list[float]) -> float | None:
 
 
 def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -> dict:
-    bad = [p for p in planners if p not in PLANNERS]
+    valid = planner_names()
+    bad = [p for p in planners if p not in valid]
     if bad:
-        raise ValueError(f"unknown planner(s) {bad}; valid: {list(PLANNERS)}")
+        raise RlgpError(f"unknown planner(s) {bad}; valid: {valid}")
     base = load_scene(scene_path)
     _, stats = load_or_build(base)
     runs = []
@@ -38,12 +40,12 @@ def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -
         scene = base if seed == 0 else randomize(base, seed)
         for name in planners:
             t0 = time.perf_counter()
-            plan = plan_scene(scene, name, seed=seed)
+            result = plan(scene, name, seed=seed)
             wall = time.perf_counter() - t0
-            runs.append({**plan.summary(), "seed": seed, "wall_s": wall})
+            runs.append({**result.summary(), "seed": seed, "wall_s": wall})
             print(
-                f"  seed {seed:3d} {name:5s} {'ok  ' if plan.success else 'FAIL'} {plan.planning_time_s:7.2f} s "
-                f"{plan.reason[:100] if not plan.success else ''}",
+                f"  seed {seed:3d} {name:5s} {'ok  ' if result.success else 'FAIL'} {result.planning_time_s:7.2f} s "
+                f"{result.reason[:100] if not result.success else ''}",
                 file=sys.stderr,
             )
     summary = {}

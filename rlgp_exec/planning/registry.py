@@ -1,0 +1,58 @@
+"""The planners by name: one entry point (``plan``) that every caller uses — the ``plan`` and ``bench``
+commands, the executive and the daemon — so a planner is added in one place.
+
+Each planner takes a scene (with its goal) and a seed and returns a validated ``Plan``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.plan import Plan
+from rlgp_exec.scene import Scene
+
+__all__ = ["PLANNERS", "plan", "planner_names", "register"]
+
+PlannerFn = Callable[[Scene, int], Plan]
+
+
+def _rlgp(name: str) -> PlannerFn:
+    def run(scene: Scene, seed: int) -> Plan:
+        from rlgp_exec.planning.rlgp import plan_scene
+
+        return plan_scene(scene, name, seed=seed)
+
+    return run
+
+
+PLANNERS: dict[str, PlannerFn] = {
+    "rlgp": _rlgp("rlgp"),  # reachability-graph heuristic cost and guided paths
+    "lgp": _rlgp("lgp"),  # distance-only heuristic (the RHH-LGP stand-in)
+}
+
+
+def register(name: str, fn: PlannerFn) -> None:
+    """Add a planner under ``name`` (later registrations replace earlier ones)."""
+    PLANNERS[name] = fn
+
+
+def _load_plugins() -> None:
+    try:  # GNPP registers its variants when its package exists
+        import rlgp_exec.planning.gnpp  # noqa: F401
+    except ModuleNotFoundError as e:
+        if e.name != "rlgp_exec.planning.gnpp":
+            raise
+
+
+def planner_names() -> list[str]:
+    _load_plugins()
+    return list(PLANNERS)
+
+
+def plan(scene: Scene, planner: str = "rlgp", seed: int = 0) -> Plan:
+    """Plan ``scene``'s goal with ``planner``; raises RlgpError naming the valid planners if unknown."""
+    _load_plugins()
+    if planner not in PLANNERS:
+        raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
+    return PLANNERS[planner](scene, seed)
