@@ -136,6 +136,58 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0 if plan.success else 1
 
 
+# ---------------------------------------------------------------------------------- run / replay
+def cmd_run(args: argparse.Namespace) -> int:
+    from rlgp_exec.executive.runner import RunOptions, run_task
+    from rlgp_exec.scene import load_scene
+
+    scene = load_scene(args.scene)
+    if args.perceive:
+        if args.backend != "sim":
+            raise RlgpError("--perceive renders the head camera in simulation: use it with --backend sim")
+        from perception.runner import perceive_scene
+
+        res = perceive_scene(scene)
+        if res.missing:
+            raise RlgpError(f"perception did not find {sorted(res.missing)}")
+        scene = res.scene
+    opts = RunOptions(
+        backend=args.backend,
+        planner=args.planner,
+        record=Path(args.record) if args.record else None,
+        endpoint=args.endpoint,
+        namespace=args.namespace,
+        seed=args.seed,
+    )
+    result, _ = run_task(scene, opts, args.goal)
+    print(f"{scene.name}: {result.status.value}: {result.detail}")
+    if result.actions:
+        print("  plan: " + " ".join(result.actions))
+    print(
+        f"  planning {result.planning_time_s:.2f} s ({result.plans} plan(s), {result.replans} replan(s)); "
+        f"execution {result.execution_time_s:.1f} s; base travelled {result.base_distance_m:.2f} m"
+    )
+    if args.record:
+        print(f"  recorded {args.record}")
+    _write_json(args.json, result.as_dict())
+    return 0 if result.ok else 1
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from rlgp_exec.executive.replay import replay
+
+    report = replay(args.file, png=args.png)
+    print(report.text())
+    _write_json(
+        args.json,
+        {"complete": report.complete, "messages": report.messages, "states": report.states,
+         "duration_s": report.duration_s, "base_distance_m": report.base_distance_m,
+         "transitions": list(report.transitions), "results": list(report.results),
+         "collisions": list(report.collisions)},
+    )
+    return 0 if not report.collisions else 1
+
+
 # ---------------------------------------------------------------------------------- rg
 def cmd_rg(args: argparse.Namespace) -> int:
     import copy
@@ -259,12 +311,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json")
     s.set_defaults(func=cmd_plan)
 
-    s = sub.add_parser("run", help="plan and execute a scene's task")
+    s = sub.add_parser("run", help="plan and execute a scene's task through a HAL backend")
     s.add_argument("scene")
     s.add_argument("--backend", choices=["sim", "zenoh", "can"], default="sim")
-    s.add_argument("--perceive", action="store_true")
-    s.add_argument("--record")
-    s.set_defaults(func=_pending("run"))
+    s.add_argument("--perceive", action="store_true", help="(sim) initial object poses from AprilTag perception")
+    s.add_argument("--record", help="write the run to this MCAP file")
+    s.add_argument("--planner", default="rlgp")
+    s.add_argument("--goal", action="append", help="a goal literal, e.g. '(on block tray)' (repeatable)")
+    s.add_argument("--endpoint", help="zenoh: the robot's endpoint, e.g. tcp/127.0.0.1:7447")
+    s.add_argument("--namespace", default="", help="zenoh: key prefix")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--json")
+    s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability (planners and executive later)")
     s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
@@ -311,7 +369,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("replay", help="replay an MCAP recording into PyBullet")
     s.add_argument("file")
-    s.set_defaults(func=_pending("replay"))
+    s.add_argument("--png", help="a picture of the final replayed state")
+    s.add_argument("--json")
+    s.set_defaults(func=cmd_replay)
 
     s = sub.add_parser("show", help="render a scene to a PNG (PyBullet camera)")
     s.add_argument("scene")

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.world import MOCAP_KEY, encode_poses
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
@@ -38,6 +39,13 @@ from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_con
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
 log = logging.getLogger("sim.robot_server")
+
+PUSH_KEY = "rlgp/sim/push"  # sim only: JSON {"object", "dx", "dy"} moves an object (a test's "someone bumped it")
+MOCAP_EVERY = 5  # ticks between object-pose messages (20 Hz at 100 Hz)
+
+
+def _ns(namespace: str, key: str) -> str:
+    return f"{namespace}/{key}" if namespace else key
 
 
 class RealTimeLoop:
@@ -125,6 +133,9 @@ class ZenohRobotServer:
             self._decls.append(s.declare_subscriber(k[name].key, self._guard(name, fn)))
         self._decls.append(s.liveliness().declare_subscriber(k.alive_executive, self._on_executive, history=True))
         self._decls.append(s.declare_queryable(k.stats, self._on_stats))
+        if self.sim.objects:  # the simulated world's object poses, as a motion-capture system would send them
+            self._pubs["mocap"] = s.declare_publisher(_ns(k.namespace, MOCAP_KEY))
+            self._decls.append(s.declare_subscriber(_ns(k.namespace, PUSH_KEY), self._guard("push", self._push)))
         self._token = s.liveliness().declare_token(k.alive_robot)
         self.loop.start()
         log.info(
@@ -152,6 +163,10 @@ class ZenohRobotServer:
         self._pubs["runstop"].put(rc.encode_bool(st.estopped))
         if self._ticks % 10 == 0:
             self._pubs["faults"].put(rc.encode_string("\n".join(st.faults)))
+        if "mocap" in self._pubs and self._ticks % MOCAP_EVERY == 0:
+            with self.lock:
+                poses = {n: self.sim.object_pose(n) for n in self.sim.objects}
+            self._pubs["mocap"].put(encode_poses(st.stamp, poses))
 
     # ------------------------------------------------------------------ commands
     def _guard(self, topic: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:
@@ -249,6 +264,26 @@ class ZenohRobotServer:
             self.sim.estop(bool(m.data))
         self._ok(topic)
         log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
+
+    def _push(self, payload: bytes, topic: str) -> None:
+        """Sim only: move an object on its support by (dx, dy) [m] — someone bumped it. JSON payload
+        {"object": name, "dx": m, "dy": m}; |d| <= 0.3 m; a held object cannot be pushed."""
+        try:
+            req = json.loads(payload)
+            name, dx, dy = req["object"], float(req["dx"]), float(req["dy"])
+        except (ValueError, KeyError, TypeError) as e:
+            self.rejects.reject("malformed", f"{topic}: {type(e).__name__}: {e}")
+            return
+        with self.lock:
+            if name not in self.sim.objects:
+                self.rejects.reject("unknown_object", f"{topic}: {name!r}; valid: {sorted(self.sim.objects)}")
+                return
+            if not (np.isfinite(dx) and np.isfinite(dy) and np.hypot(dx, dy) <= 0.3) or name == self.sim.held:
+                self.rejects.reject("invalid", f"{topic}: cannot push {name!r} by ({dx}, {dy})")
+                return
+            self.sim.push_object(name, dx, dy)
+        self._ok(topic)
+        log.warning("robot_server: pushed %s by (%.3f, %.3f) m", name, dx, dy)
 
     def _on_executive(self, sample: Any) -> None:
         import zenoh

@@ -268,6 +268,13 @@ class SimRobot:
             faults=tuple(self.faults),
         )
 
+    def push_object(self, name: str, dx: float, dy: float) -> None:
+        """Move a (not held) object by (dx, dy) [m] in the world frame, at rest."""
+        body = self.objects[name]
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        p.resetBasePositionAndOrientation(body, [pos[0] + dx, pos[1] + dy, pos[2]], orn, physicsClientId=self.client)
+        p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
+
     def object_pose(self, name: str) -> FloatArray:
         from rlgp_exec.robot.pybullet_body import pose_to_matrix
 

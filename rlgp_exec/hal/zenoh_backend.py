@@ -93,6 +93,11 @@ class ZenohBackend(RobotInterface):
         self._session.close()
         self._session = None
 
+    @property
+    def session(self) -> Any:
+        """The open Zenoh session (None unless configured), for other subscribers on the same link."""
+        return self._session
+
     def wait_for_robot(self, timeout: float = 10.0) -> bool:
         """Block until the heartbeat is ok (robot present, fresh state) or ``timeout`` [s] passes."""
         end = time.monotonic() + timeout

@@ -19,6 +19,7 @@ import numpy as np
 
 from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
 from rlgp_exec.planning.plan import Plan
+from rlgp_exec.planning.shortcut import shortcut
 from rlgp_exec.planning.validate import Phase, validate_plan
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
 from rlgp_exec.robot import load_robot
@@ -163,6 +164,8 @@ class SequenceGeometry:
             try:
                 transport = self._transport(q_prev, q_pre)
                 res = None if transport is not None else self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
+                if res is not None and res.ok:  # straighten the graph's wandering waypoints
+                    res = replace(res, path=shortcut(res.path, self.checker.edge_collides))
             finally:
                 self.rg.carrying(None)
             if res is not None and not res.ok:

@@ -4,6 +4,7 @@ from rlgp_exec.scene.geometry import Box, CabinetGeometry, cabinet_geometry, fix
 from rlgp_exec.scene.literals import PREDICATES, parse_literal
 from rlgp_exec.scene.loader import load_scene, scene_from_dict
 from rlgp_exec.scene.randomize import randomize, scene_hash
+from rlgp_exec.scene.serialize import scene_to_dict
 from rlgp_exec.scene.types import (
     COLORS,
     DrawerSpec,
@@ -44,4 +45,5 @@ __all__ = [
     "region_box",
     "scene_from_dict",
     "scene_hash",
+    "scene_to_dict",
 ]

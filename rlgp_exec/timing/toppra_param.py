@@ -19,6 +19,7 @@ why not.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
@@ -51,6 +52,7 @@ MAX_RETRIES = 3
 CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
 POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
 _DUP = 1e-9
+CUSP_DEG = 80.0  # [deg] a path turning more than this at a waypoint stops there (rest-to-rest pieces)
 
 
 class PchipPath(ta.interpolator.AbstractGeometricPath):
@@ -232,6 +234,14 @@ def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
     return ConstAccelPiece(path, np.asarray(data.gridpoints), np.asarray(data.sd_vec))
 
 
+def cusps(p: FloatArray, max_turn_deg: float = CUSP_DEG) -> list[int]:
+    """Interior waypoints of ``p`` (T, N) where the path turns by more than ``max_turn_deg``."""
+    d = np.diff(p, axis=0)
+    n = np.linalg.norm(d, axis=1)
+    cos = np.einsum("ij,ij->i", d[:-1], d[1:]) / np.maximum(n[:-1] * n[1:], 1e-300)
+    return [int(i) + 1 for i in np.flatnonzero(cos < math.cos(math.radians(max_turn_deg)))]
+
+
 def time_parameterize(
     path: Sequence[Sequence[float]] | FloatArray, limits: JointLimits, *, gridpoints: int = 100
 ) -> TimingResult:
@@ -246,6 +256,12 @@ def time_parameterize(
     if p.shape[0] == 1:  # nothing moves
         traj = Trajectory(limits.names, limits, (_Hold(p[0]),), (Segment(PhaseKind.MOTION, 0.0, 0.0),))
         return TimingResult(TimingStatus.OK, "no motion", traj, (time.perf_counter() - t0) * 1e3)
+    corners = cusps(p)
+    if corners:  # stop at each sharp corner: no smooth path passes it, and a spline through it overshoots
+        cuts = [0, *corners, p.shape[0] - 1]
+        return time_parameterize_phases(
+            [(PhaseKind.MOTION, p[a : b + 1]) for a, b in itertools.pairwise(cuts)], limits, gridpoints=gridpoints
+        )
     chord = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
     spline_path = PchipPath(chord / chord[-1], p)
     ss = np.linspace(0.0, 1.0, 2001)
@@ -335,16 +351,16 @@ def time_parameterize_phases(
             )
         assert res.trajectory is not None
         retries += res.retries
-        piece = res.trajectory.pieces[0]
-        if pieces:  # keep the unwrapped angles continuous from one phase to the next
-            last = pieces[-1](np.array([pieces[-1].duration]))[0]
-            first = piece(np.array([0.0]))[0]
-            shift = np.round((last - first) / (2 * np.pi)) * 2 * np.pi * limits.continuous
-            if np.any(shift):
-                piece = _Shifted(piece, shift)
-        pieces.append(piece)
-        segments.append(Segment(kind, t, t + res.trajectory.duration))
-        t += res.trajectory.duration
+        for piece in res.trajectory.pieces:  # several when the phase stops at sharp corners
+            if pieces:  # keep the unwrapped angles continuous from one phase to the next
+                last = pieces[-1](np.array([pieces[-1].duration]))[0]
+                first = piece(np.array([0.0]))[0]
+                shift = np.round((last - first) / (2 * np.pi)) * 2 * np.pi * limits.continuous
+                if np.any(shift):
+                    piece = _Shifted(piece, shift)
+            pieces.append(piece)
+            segments.append(Segment(kind, t, t + piece.duration))
+            t += piece.duration
         prev_end = p[-1]
     traj = Trajectory(limits.names, limits, tuple(pieces), tuple(segments))
     return TimingResult(TimingStatus.OK, "ok", traj, (time.perf_counter() - t0) * 1e3, retries)

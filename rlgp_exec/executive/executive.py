@@ -1,0 +1,384 @@
+"""The executive: SENSE -> PLAN -> TIME -> ACT -> VERIFY for one task, as an explicit state machine,
+with replanning from where the robot is after a failed grasp, a moved object or a stopped segment.
+
+``Executive.run(goal)`` never raises for an expected failure: the ``TaskResult`` says what happened
+(``TaskStatus``) and why. Real errors in the inputs (an invalid goal) are results too, so a daemon
+keeps serving. Every run is recorded when a ``Recorder`` is given.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals
+from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
+from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.states import ExecState, StateMachine
+from rlgp_exec.executive.world import ObjectSource, update_scene
+from rlgp_exec.hal.interface import RobotInterface
+from rlgp_exec.hal.types import Lifecycle, RobotState
+from rlgp_exec.planning.plan import Plan
+from rlgp_exec.planning.validate import Phase, goal_holds
+from rlgp_exec.scene import Scene, scene_to_dict
+from rlgp_exec.scene.literals import parse_goal
+from rlgp_exec.scene.types import Goal
+from rlgp_exec.timing import TRACKING_HEADROOM, Trajectory, time_parameterize
+
+__all__ = ["Executive", "TaskResult", "TaskStatus"]
+
+log = logging.getLogger(__name__)
+S = ExecState
+PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before INFEASIBLE
+
+
+class TaskStatus(enum.Enum):
+    SUCCEEDED = "succeeded"  # goal verified in the sensed world (or, without sensing, executed as planned)
+    INVALID_GOAL = "invalid_goal"
+    INFEASIBLE = "infeasible"  # the planner found no valid plan
+    FAILED = "failed"  # replans exhausted, timing failed, or the goal does not hold after execution
+    CANCELLED = "cancelled"
+    ESTOPPED = "estopped"
+    FAULT = "fault"
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    status: TaskStatus
+    detail: str
+    goal: tuple[str, ...]
+    actions: tuple[str, ...] = ()
+    plans: int = 0
+    replans: int = 0
+    planning_time_s: float = 0.0
+    execution_time_s: float = 0.0
+    time_to_first_motion_s: float | None = None
+    base_distance_m: float = 0.0
+    verified: bool = False  # the goal was checked against sensed object poses
+
+    @property
+    def ok(self) -> bool:
+        return self.status is TaskStatus.SUCCEEDED
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "status": self.status.value,
+            "detail": self.detail,
+            "goal": list(self.goal),
+            "actions": list(self.actions),
+            "plans": self.plans,
+            "replans": self.replans,
+            "planning_time_s": self.planning_time_s,
+            "execution_time_s": self.execution_time_s,
+            "time_to_first_motion_s": self.time_to_first_motion_s,
+            "base_distance_m": self.base_distance_m,
+            "verified": self.verified,
+        }
+
+
+class Executive:
+    """One robot (a HAL backend, configured here), one world model, one task at a time."""
+
+    def __init__(
+        self,
+        hal: RobotInterface,
+        scene: Scene,
+        objects: ObjectSource,
+        *,
+        planner: str = "rlgp",
+        recorder: Recorder | None = None,
+        period: float = 0.01,
+        tolerances: Tolerances | None = None,
+        max_replans: int = 3,
+        seed: int = 0,
+    ) -> None:
+        if scene.robot.name != hal.model.name:
+            raise RlgpError(
+                f"scene {scene.name!r} is for robot {scene.robot.name!r}, the HAL drives {hal.model.name!r}"
+            )
+        self.hal, self.model = hal, hal.model
+        self.scene = scene  # the world model: updated by every SENSE
+        self.objects = objects
+        self.planner, self.seed, self.max_replans = planner, seed, max_replans
+        self.recorder = recorder
+        self.tol = tolerances or Tolerances()
+        self.signals = Signals()
+        self.sm = StateMachine()
+        if recorder is not None:
+            self.sm.listeners.append(lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall))
+        self.actor = Actor(hal, self.signals, recorder, period, self.tol)
+        self.held: str | None = None
+        self.last_plan: Plan | None = None
+
+    # ------------------------------------------------------------------ requests (any thread)
+    def estop(self) -> None:
+        """Latch the e-stop: the control loop latches the HAL's within one cycle; when idle, at once."""
+        self.signals.estop.set()
+        if self.sm.state in (S.IDLE, S.FAULT, S.SENSING, S.PLANNING):
+            self._latch_estop("e-stop requested")
+
+    def rearm(self) -> None:
+        """Release the e-stop (explicitly): back to IDLE; the next task activates the HAL again."""
+        if self.sm.state is not S.ESTOPPED:
+            raise RlgpError(f"rearm: the executive is {self.sm.state.name}, not ESTOPPED")
+        if self.hal.lifecycle is Lifecycle.ESTOPPED:
+            self.hal.rearm()
+        self.signals.estop.clear()
+        self.sm.to(S.IDLE, "re-armed")
+
+    def cancel(self) -> None:
+        self.signals.cancel.set()
+
+    def reset(self) -> None:
+        """FAULT -> IDLE once someone has looked (the HAL must be healthy again to move)."""
+        if self.sm.state is S.FAULT:
+            self.sm.to(S.IDLE, "fault reset")
+
+    def _latch_estop(self, why: str) -> None:
+        if self.hal.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE):
+            self.hal.estop()
+        if self.sm.state is not S.ESTOPPED:
+            self.sm.to(S.ESTOPPED, why)
+
+    # ------------------------------------------------------------------ stages
+    def _event(self, kind: str, **data: object) -> None:
+        if self.recorder is not None:
+            self.recorder.write("/events", {"kind": kind, **data})
+
+    def _robot_state(self) -> RobotState:
+        self.actor.clock.keepalive()
+        if not self.hal.heartbeat_ok():
+            raise _FaultError(f"no fresh robot state within {self.hal.heartbeat_timeout} s")
+        st = self.hal.read_state()
+        if st is None:
+            raise _FaultError("no robot state received")
+        return st
+
+    def sense(self) -> Scene:
+        """Update the world model from the robot's state and the object source."""
+        st = self._robot_state()
+        poses = self.objects.poses()
+        if self.recorder is not None:
+            self.recorder.write(
+                "/detections", {"source": type(self.objects).__name__, "poses": {n: T for n, T in poses.items()}}
+            )
+        self.scene = update_scene(self.scene, self.model, st, poses, self.held)
+        if self.recorder is not None:
+            self.recorder.write("/scene", scene_to_dict(self.scene))
+        return self.scene
+
+    def _goal(self, literals: Sequence[str] | None) -> Goal:
+        if literals is None:
+            return self.scene.goal
+
+        def fail(where: str, msg: str) -> SceneError:
+            return SceneError("goal", where, msg)
+
+        if isinstance(literals, str) or not all(isinstance(x, str) for x in literals):
+            raise SceneError("goal", "literals", f"expected a list of literal strings, got {literals!r}")
+        if not literals:
+            raise SceneError("goal", "literals", "empty goal")
+        return Goal(parse_goal(list(literals), self.scene, fail))
+
+    def _unmet(self, goal: Goal) -> list[str]:
+        poses = {o.name: o.T for o in self.scene.objects}
+        return [why for lit in goal.literals for ok, why in [goal_holds(self.scene, lit, poses)] if not ok]
+
+    def _time(self, plan: Plan) -> list[Trajectory | None]:
+        limits = self.model.limits.scaled(*TRACKING_HEADROOM)
+        out: list[Trajectory | None] = []
+        for k, ph in enumerate(plan.phases):
+            if len(ph.path) < 2:
+                out.append(None)
+                continue
+            res = time_parameterize(ph.path, limits)
+            if not res.ok:
+                raise _FailedError(f"timing phase {k}: {res.status.value}: {res.reason}")
+            out.append(res.trajectory)
+        return out
+
+    def _world_check(self, plan_scene: Scene):
+        """Before and during a phase that ends in a grasp: is the object still where the plan assumed?"""
+
+        def check(k: int, ph: Phase, st: RobotState) -> Violation | None:
+            if ph.grasp is None or not self.objects.senses:
+                return None
+            poses = self.objects.poses()
+            T = poses.get(ph.grasp)
+            if T is None:
+                return None  # not seen now: go on the last estimate
+            planned = plan_scene.object(ph.grasp).pose
+            d = float(np.linalg.norm(T[:2, 3] - np.asarray(planned[:2])))
+            if d > self.tol.object_moved:
+                return Violation("object_moved", Reaction.REPLAN, f"{ph.grasp} moved {d * 1000:.0f} mm since planning")
+            return None
+
+        return check
+
+    # ------------------------------------------------------------------ the task
+    def run(self, goal_literals: Sequence[str] | None = None) -> TaskResult:
+        """Achieve ``goal_literals`` (default: the scene's goal). Returns when done, failed or stopped."""
+        t_start = time.perf_counter()
+        self.signals.cancel.clear()
+        first_motion: list[float] = []
+        self.actor._on_first_motion = lambda: first_motion.append(time.perf_counter() - t_start)
+        stats = {"plans": 0, "replans": 0, "planning_time_s": 0.0, "execution_time_s": 0.0}
+        d0 = self.actor.base_distance_m
+        goal_text: tuple[str, ...] = (
+            tuple(goal_literals) if goal_literals is not None else tuple(str(x) for x in self.scene.goal.literals)
+        )
+        actions: tuple[str, ...] = ()
+
+        def result(status: TaskStatus, detail: str, verified: bool = False) -> TaskResult:
+            r = TaskResult(
+                status,
+                detail,
+                goal_text,
+                actions,
+                stats["plans"],
+                stats["replans"],  # type: ignore[arg-type]
+                stats["planning_time_s"],
+                stats["execution_time_s"],
+                first_motion[0] if first_motion else None,
+                self.actor.base_distance_m - d0,
+                verified,
+            )
+            self._event("result", **r.as_dict())
+            log.info("task %s: %s", status.value, detail)
+            return r
+
+        if self.sm.state is S.ESTOPPED:
+            return result(TaskStatus.ESTOPPED, "e-stop latched: rearm first")
+        if self.sm.state is S.FAULT:
+            return result(TaskStatus.FAULT, "in FAULT: reset first")
+        if self.sm.state is not S.IDLE:
+            return result(TaskStatus.FAILED, f"busy ({self.sm.state.name})")
+        try:
+            self.sm.to(S.SENSING, f"task {' '.join(goal_text)}")
+            try:
+                goal = self._goal(goal_literals)
+            except SceneError as e:
+                self.sm.to(S.IDLE, "invalid goal")
+                return result(TaskStatus.INVALID_GOAL, str(e))
+            self._event("goal", literals=[str(g) for g in goal.literals])
+            self.sense()
+            for attempt in range(self.max_replans + 1):
+                if self.signals.estop.is_set():
+                    self._latch_estop("e-stop requested")
+                    return result(TaskStatus.ESTOPPED, "e-stop")
+                if self.signals.cancel.is_set():
+                    self.sm.to(S.IDLE, "cancelled")
+                    return result(TaskStatus.CANCELLED, "cancelled before motion")
+                unmet = self._unmet(goal)
+                if not unmet:
+                    self.sm.to(S.IDLE, "goal holds")
+                    if self.objects.senses:
+                        return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
+                    return result(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)")
+                if self.held is not None:
+                    raise _FaultError(f"holding {self.held!r}: this build replans only with an empty hand")
+                self.sm.to(S.PLANNING, f"attempt {attempt + 1}")
+                scene = replace(self.scene, goal=goal)
+                from rlgp_exec.planning.registry import plan as run_planner
+
+                for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
+                    plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k)
+                    stats["plans"] += 1
+                    stats["planning_time_s"] += plan.planning_time_s
+                    if plan.success:
+                        break
+                self.last_plan = plan
+                if self.recorder is not None:
+                    self.recorder.write(
+                        "/plan",
+                        {
+                            **plan.summary(),
+                            "phases": [
+                                {"path": ph.path, "held": ph.held, "grasp": ph.grasp, "release": ph.release}
+                                for ph in plan.phases
+                            ],
+                        },
+                    )
+                if not plan.success:
+                    self.sm.to(S.IDLE, "no plan")
+                    return result(TaskStatus.INFEASIBLE, f"{self.planner}: {plan.reason}")
+                actions = plan.actions
+                trajectories = self._time(plan)
+                self.sm.to(S.EXECUTING, " ".join(plan.actions))
+                out = self._act(plan, trajectories, scene)
+                stats["execution_time_s"] += out[1]
+                outcome = out[0]
+                self.held = outcome.held
+                if outcome.status is ActStatus.ESTOPPED:
+                    self._latch_estop("e-stop during motion")
+                    return result(TaskStatus.ESTOPPED, f"e-stop during phase {outcome.phases_done}")
+                if outcome.status is ActStatus.CANCELLED:
+                    self.sm.to(S.IDLE, "cancelled")
+                    return result(TaskStatus.CANCELLED, f"cancelled during phase {outcome.phases_done}; at rest")
+                if outcome.status is ActStatus.DONE:
+                    self.sm.to(S.SENSING, "verify")
+                    self.sense()
+                    unmet = self._unmet(goal)
+                    if not self.objects.senses:
+                        self.sm.to(S.IDLE, "executed (not verified: no object sensing)")
+                        return result(TaskStatus.SUCCEEDED, "executed as planned; goal not verified (poses not sensed)")
+                    if not unmet:
+                        self.sm.to(S.IDLE, "goal verified")
+                        return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
+                    self.sm.to(S.RECOVERING, "goal not met: " + "; ".join(unmet))
+                    self._event("violation", monitor="verify", reaction="replan", detail="; ".join(unmet))
+                else:
+                    v = outcome.violation
+                    assert v is not None
+                    self._event("violation", monitor=v.monitor, reaction=v.reaction.value, detail=v.detail)
+                    if v.reaction is Reaction.FAULT:
+                        raise _FaultError(str(v))
+                    self.sm.to(S.RECOVERING, str(v))
+                stats["replans"] += 1
+                self.sm.to(S.SENSING, "replan from the current state")
+                self.sense()
+            self.sm.to(S.IDLE, "replans exhausted")
+            return result(TaskStatus.FAILED, f"goal not reached after {self.max_replans} replans")
+        except _FaultError as e:
+            self._fault(str(e))
+            return result(TaskStatus.FAULT, str(e))
+        except _FailedError as e:
+            self.sm.to(S.IDLE, str(e))
+            return result(TaskStatus.FAILED, str(e))
+        except SceneError as e:  # the sensed world is not plannable (an object fell, ...)
+            self.sm.to(S.IDLE, "bad sensed world")
+            return result(TaskStatus.FAILED, f"sensed world: {e}")
+
+    def _act(self, plan: Plan, trajectories: list[Trajectory | None], scene: Scene) -> tuple[ActOutcome, float]:
+        st = self._robot_state()
+        if self.hal.lifecycle is Lifecycle.INACTIVE:
+            self.hal.activate()
+        self.actor.start(st)
+        c0 = self.actor.cycles
+        out = self.actor.run_phases(list(plan.phases), trajectories, self.held, self._world_check(scene))
+        return out, (self.actor.cycles - c0) * self.actor.period
+
+    def _fault(self, why: str) -> None:
+        log.error("executive fault: %s", why)
+        self._event("fault", detail=why)
+        if self.hal.lifecycle is Lifecycle.ACTIVE:
+            try:
+                self.hal.deactivate()  # hold position, stop the base (if the robot still listens)
+            except RlgpError as e:
+                log.warning("deactivate during fault: %s", e)
+        if self.sm.state is not S.FAULT:
+            self.sm.to(S.FAULT, why)
+
+
+class _FaultError(Exception):
+    pass
+
+
+class _FailedError(Exception):
+    pass

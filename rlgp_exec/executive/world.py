@@ -1,0 +1,212 @@
+"""The executive's world model: the scene as last sensed — object poses from an ``ObjectSource`` and the
+robot's start from its measured state — ready to plan from.
+
+Object sources (one abstract method, ``poses``):
+
+- ``ScenePoses``: the scene file's poses; senses nothing (a dry run that trusts the file; the goal
+  cannot be verified against the world and the result says so).
+- ``SimMocap``: the in-process simulated robot's object poses (stands in for a motion-capture system).
+- ``ZenohMocap``: object poses published on a Zenoh key as ``tf2_msgs/msg/TFMessage`` (CDR), one
+  transform per object (``child_frame_id`` = object name) — what a mocap bridge publishes, and what the
+  simulated robot server publishes. Poses older than ``max_age_s`` are stale and not used.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import math
+import threading
+import time
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.hal.types import RobotState
+from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import support_surfaces
+from rlgp_exec.scene.validate import find_support
+
+__all__ = [
+    "MOCAP_KEY",
+    "ObjectSource",
+    "ScenePoses",
+    "SimMocap",
+    "ZenohMocap",
+    "encode_poses",
+    "update_scene",
+]
+
+log = logging.getLogger(__name__)
+
+MOCAP_KEY = "rlgp/mocap/objects"  # tf2_msgs/msg/TFMessage, world frame "map"
+SNAP_Z = 0.015  # [m] a sensed object this close above/below a support surface rests on it
+
+
+class ObjectSource(abc.ABC):
+    """Where object poses come from."""
+
+    senses: bool = True  # False: the poses are assumptions, not observations
+
+    @abc.abstractmethod
+    def poses(self) -> dict[str, FloatArray]:
+        """T_world_object (4, 4) of every object seen now (unseen objects are absent)."""
+
+    def close(self) -> None:  # noqa: B027 - optional
+        pass
+
+
+class ScenePoses(ObjectSource):
+    senses = False
+
+    def __init__(self, scene: Scene) -> None:
+        self._poses = {o.name: o.T for o in scene.objects}
+
+    def poses(self) -> dict[str, FloatArray]:
+        return dict(self._poses)
+
+
+class SimMocap(ObjectSource):
+    """Poses from an in-process ``SimRobot`` (the HAL's sim backend: ``hal.sim``)."""
+
+    def __init__(self, hal: Any) -> None:
+        self._hal = hal
+
+    def poses(self) -> dict[str, FloatArray]:
+        sim = self._hal.sim
+        if sim is None:
+            return {}
+        return {name: sim.object_pose(name) for name in sim.objects}
+
+
+def encode_poses(stamp: float, poses: dict[str, FloatArray]) -> bytes:
+    """A TFMessage (CDR) with one transform per object, parent frame "map"."""
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.hal.ros_codec import _header, _ser, _t
+
+    tfs = []
+    for name, T in poses.items():
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        tfs.append(
+            _t("geometry_msgs/msg/TransformStamped")(
+                header=_header(stamp, "map"),
+                child_frame_id=name,
+                transform=_t("geometry_msgs/msg/Transform")(
+                    translation=_t("geometry_msgs/msg/Vector3")(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
+                    rotation=_t("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w),
+                ),
+            )
+        )
+    return _ser(_t("tf2_msgs/msg/TFMessage")(transforms=tfs), "tf2_msgs/msg/TFMessage")
+
+
+def decode_poses(payload: bytes) -> dict[str, FloatArray]:
+    """Decode a TFMessage; raises RlgpError naming what is wrong (bad CDR, non-finite, bad quaternion)."""
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.hal import ros_codec as rc
+
+    msg = rc.decode(payload, "tf2_msgs/msg/TFMessage")
+    if isinstance(msg, rc.Rejected):
+        raise RlgpError(f"mocap: {msg.reason}")
+    out = {}
+    for tf in msg.transforms:
+        tr, q = tf.transform.translation, tf.transform.rotation
+        v = np.array([tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w], float)
+        if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
+            raise RlgpError(f"mocap: bad transform for {tf.child_frame_id!r}: {v.tolist()}")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
+        T[:3, 3] = v[:3]
+        out[str(tf.child_frame_id)] = T
+    return out
+
+
+class ZenohMocap(ObjectSource):
+    """Subscribes to ``MOCAP_KEY`` (prefixed by ``namespace``) on an open Zenoh session."""
+
+    def __init__(self, session: Any, namespace: str = "", max_age_s: float = 0.5) -> None:
+        self.key = f"{namespace.strip('/')}/{MOCAP_KEY}" if namespace else MOCAP_KEY
+        self.max_age_s = max_age_s
+        self._lock = threading.Lock()
+        self._poses: dict[str, FloatArray] = {}
+        self._wall = -math.inf
+        self.rejected = 0
+        self._sub = session.declare_subscriber(self.key, self._on_sample)
+
+    def _on_sample(self, sample: Any) -> None:
+        try:
+            poses = decode_poses(sample.payload.to_bytes())
+        except RlgpError as e:
+            self.rejected += 1
+            log.warning("%s", e)
+            return
+        with self._lock:
+            self._poses, self._wall = poses, time.monotonic()
+
+    def poses(self) -> dict[str, FloatArray]:
+        with self._lock:
+            if time.monotonic() - self._wall > self.max_age_s:
+                return {}
+            return dict(self._poses)
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception as e:  # the session may be gone already
+            log.debug("mocap undeclare: %s", e)
+
+
+def _snap(scene: Scene, name: str, x: float, y: float, z: float, height: float) -> float:
+    bottom = z - height / 2
+    xy = np.array([x, y])
+    near = [s.z for s in support_surfaces(scene, exclude=name) if s.contains(xy) and abs(s.z - bottom) <= SNAP_Z]
+    return (max(near) + height / 2) if near else z
+
+
+def update_scene(
+    scene: Scene,
+    model: RobotModel,
+    state: RobotState | None,
+    poses: dict[str, FloatArray],
+    held: str | None = None,
+) -> Scene:
+    """``scene`` with the robot's base and manipulator joints from ``state`` and the objects at ``poses``
+    (upright, resting on the surface under them). Raises SceneError naming an object that is not resting
+    on anything (it fell, or is in the hand: ``held``)."""
+    objects = []
+    for o in scene.objects:
+        T = poses.get(o.name)
+        if T is None or o.name == held:
+            objects.append(o)
+            continue
+        x, y, z = (float(v) for v in T[:3, 3])
+        yaw = math.atan2(T[1, 0], T[0, 0])
+        objects.append(replace(o, pose=(x, y, z, yaw)))
+    s = replace(scene, objects=tuple(objects))
+    s = replace(
+        s,
+        objects=tuple(
+            replace(
+                o, pose=(o.pose[0], o.pose[1], _snap(s, o.name, o.pose[0], o.pose[1], o.pose[2], o.size[2]), o.pose[3])
+            )
+            for o in s.objects
+        ),
+    )
+    if state is not None:
+        joints = dict(scene.robot.joints)
+        arm = model.manipulator().group
+        for i in model.group(arm):
+            n = model.joint_names[i]
+            if n in state.names:
+                joints[n] = float(state.position(n))
+        s = replace(s, robot=replace(scene.robot, base=tuple(float(b) for b in state.base), joints=joints))
+
+    def fail(where: str, msg: str) -> SceneError:
+        return SceneError(f"{scene.name} (sensed)", where, msg)
+
+    return find_support(s, fail)

@@ -1,0 +1,313 @@
+"""The executive: state machine, monitors, recordings, sense-plan-act on the sim backend and over Zenoh
+against a ``sim-robot`` process (a moved object triggers a replan; a dead robot a FAULT within 200 ms),
+the e-stop, and bad goals answered with a status while the executive keeps working."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive import (
+    ExecState,
+    Executive,
+    Recorder,
+    ScenePoses,
+    SimMocap,
+    StateMachine,
+    TaskStatus,
+    read_recording,
+)
+from rlgp_exec.executive.monitors import Tolerances, check_duration, check_start_state, joint_error
+from rlgp_exec.executive.replay import replay
+from rlgp_exec.executive.runner import RunOptions, connect
+from rlgp_exec.hal import Lifecycle, make_backend
+from rlgp_exec.robot import load_robot
+from rlgp_exec.scene import load_scene, scene_from_dict, scene_to_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "tests" / "data" / "shelf_hsr.toml"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# ---------------------------------------------------------------------------------- units
+def test_state_machine_allows_only_listed_transitions_and_logs_them():
+    sm = StateMachine()
+    seen = []
+    sm.listeners.append(seen.append)
+    sm.to(ExecState.SENSING, "task")
+    with pytest.raises(RlgpError, match=r"no transition SENSING -> EXECUTING.*valid from SENSING"):
+        sm.to(ExecState.EXECUTING)
+    sm.to(ExecState.ESTOPPED, "button")
+    with pytest.raises(RlgpError):
+        sm.to(ExecState.PLANNING)  # only re-arm (IDLE) or FAULT leave ESTOPPED
+    assert [(t.source, t.target) for t in seen] == [
+        (ExecState.IDLE, ExecState.SENSING),
+        (ExecState.SENSING, ExecState.ESTOPPED),
+    ]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    q=st.lists(st.floats(-3.0, 3.0), min_size=11, max_size=11),
+    turns=st.integers(-3, 3),
+)
+def test_start_state_tolerance_is_wrap_aware(q, turns):
+    model = load_robot("hsr")
+    a = np.array(q)
+    b = a.copy()
+    b[2] += 2 * math.pi * turns  # the base yaw, a whole number of turns away: the same configuration
+    for i in np.flatnonzero(model.limits.continuous):
+        b[i] += 2 * math.pi * turns
+    assert joint_error(model, a, b).max() < 1e-9
+    assert check_start_state(model, a, b, Tolerances()) is None
+    c = a.copy()
+    c[3] += 0.2  # the lift 20 cm off
+    v = check_start_state(model, a, c, Tolerances())
+    assert v is not None and "arm_lift_joint" in v.detail
+
+
+def test_duration_monitor_uses_moveits_convention():
+    assert check_duration(1.1 * 10.0 + 0.49, 10.0) is None
+    assert check_duration(1.1 * 10.0 + 0.51, 10.0) is not None
+
+
+def test_scene_round_trips_through_the_recorded_form():
+    for path in sorted((ROOT / "sim" / "scenes").glob("*.toml")):
+        s = load_scene(path)
+        assert scene_from_dict(scene_to_dict(s), s.source) == s
+
+
+def test_a_killed_writer_leaves_a_readable_recording(tmp_path):
+    path = tmp_path / "killed.mcap"
+    code = textwrap.dedent(f"""
+        import sys, time
+        from rlgp_exec.executive.recorder import Recorder
+        rec = Recorder({str(path)!r})
+        for i in range(100000):
+            rec.write("/robot_state", {{"i": i, "q": [0.1] * 11}})
+            if i == 500:
+                rec.write("/transitions", {{"to": "executing"}})
+                print("ready", flush=True)
+            time.sleep(0.0005)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and "ready" in proc.stdout.readline()
+    time.sleep(0.3)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    rec = read_recording(path)
+    assert not rec.complete
+    states = rec.topic("/robot_state")
+    assert len(states) > 501 and [d["i"] for _, d in states] == list(range(len(states)))
+    assert rec.topic("/transitions")[0][1] == {"to": "executing"}
+
+
+def test_garbage_is_not_a_recording(tmp_path):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\n" + os.urandom(64))
+    with pytest.raises(RlgpError, match="not a readable MCAP recording"):
+        read_recording(bad)
+
+
+# ---------------------------------------------------------------------------------- sim backend
+@pytest.fixture
+def sim_exec(tmp_path):
+    scene = load_scene(SCENE)
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    rec = Recorder(tmp_path / "run.mcap")
+    ex = Executive(hal, scene, SimMocap(hal), recorder=rec)
+    yield ex, hal, rec
+    rec.close()
+    hal.shutdown()
+
+
+def test_sense_plan_act_reaches_the_goal_and_the_recording_replays(sim_exec):
+    ex, hal, rec = sim_exec
+    result = ex.run()
+    assert result.status is TaskStatus.SUCCEEDED, result.detail
+    assert result.verified and result.actions == ("(pick block)", "(place block tray)")
+    assert ex.sm.state is ExecState.IDLE
+    # the goal holds in the physics, not just in the executive's opinion
+    T = hal.sim.object_pose("block")
+    tray = ex.scene.regions[0]
+    assert abs(T[1, 3] - (0.0 + tray.offset[1])) < tray.size[1] / 2
+    rec.close()
+    R = read_recording(rec.path)
+    assert R.complete
+    assert [d["to"] for _, d in R.topic("/transitions")] == ["sensing", "planning", "executing", "sensing", "idle"]
+    assert len(R.topic("/command")) > 100 and len(R.topic("/robot_state")) > 100
+    report = replay(rec.path)
+    assert report.collisions == () and report.base_distance_m > 0.0
+    assert report.results and report.results[-1].startswith("succeeded")
+
+
+def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_exec):
+    ex, hal, _ = sim_exec
+    sent_after: list[bool] = []
+    calls = {"n": 0}
+    original = hal.write_setpoint
+
+    def counting(*a, **k):
+        res = original(*a, **k)
+        calls["n"] += 1
+        if ex.signals.estop.is_set():
+            sent_after.append(bool(res))
+        if calls["n"] == 150:  # mid-motion: the button is pressed (as from another thread)
+            ex.estop()
+        return res
+
+    hal.write_setpoint = counting  # type: ignore[method-assign]
+    result = ex.run()
+    assert result.status is TaskStatus.ESTOPPED
+    assert ex.sm.state is ExecState.ESTOPPED and hal.lifecycle is Lifecycle.ESTOPPED
+    assert sent_after == [], "a setpoint went out after the e-stop was requested"
+    q0 = hal.sim.measured_q()
+    for _ in range(100):
+        hal.step(0.01)
+    assert np.abs(hal.sim.measured_q() - q0).max() < 2e-3
+    assert ex.run().status is TaskStatus.ESTOPPED  # refused until re-armed
+    assert hal.write_setpoint(q0[3:8], names=hal.setpoint_names[:5]).status.value == "estopped"
+    ex.rearm()
+    assert ex.sm.state is ExecState.IDLE and hal.lifecycle is Lifecycle.INACTIVE
+
+
+@pytest.mark.parametrize(
+    "goal, match",
+    [
+        (["(on mug tray)"], "unknown object 'mug'"),
+        (["(on block"], "is not a literal"),
+        (["(hover block tray)"], "unknown predicate 'hover'"),
+        ([], "empty goal"),
+        ("(on block tray)", "expected a list"),
+    ],
+)
+def test_bad_goals_get_a_clear_status_and_the_executive_stays_idle(sim_exec, goal, match):
+    ex, hal, _ = sim_exec
+    result = ex.run(goal)
+    assert result.status is TaskStatus.INVALID_GOAL
+    assert match in result.detail
+    assert ex.sm.state is ExecState.IDLE and hal.lifecycle is not Lifecycle.ACTIVE
+
+
+def test_without_sensing_the_result_says_the_goal_was_not_verified(tmp_path):
+    scene = load_scene(SCENE)
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    try:
+        result = Executive(hal, scene, ScenePoses(scene)).run(["(on block table)"])
+        # true in the file: without sensing the executive does nothing and says it could not verify
+        assert result.status is TaskStatus.SUCCEEDED and not result.verified and result.plans == 0
+        assert "not sensed" in result.detail
+    finally:
+        hal.shutdown()
+
+
+# ---------------------------------------------------------------------------------- over Zenoh
+@pytest.fixture
+def robot_process():
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.robot_server", "--robot", "hsr", "--transport", "zenoh",
+         "--endpoint", ep, "--scene", str(SCENE)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert "ready" in line, proc.stderr.read() if proc.poll() is not None else line  # type: ignore[union-attr]
+    yield proc, ep
+    if proc.poll() is None:
+        proc.terminate()
+        proc.wait(10)
+
+
+def _push(ep: str, obj: str, dx: float, dy: float) -> None:
+    import zenoh
+
+    from rlgp_exec.hal.zenoh_keys import session_config
+    from sim.robot_server import PUSH_KEY
+
+    s = zenoh.open(session_config(connect=ep))
+    try:
+        time.sleep(0.3)
+        s.put(PUSH_KEY, f'{{"object": "{obj}", "dx": {dx}, "dy": {dy}}}'.encode())
+        time.sleep(0.2)
+    finally:
+        s.close()
+
+
+def test_zenoh_a_pushed_object_triggers_a_replan_and_the_goal_is_reached(robot_process, tmp_path):
+    _, ep = robot_process
+    scene = load_scene(SCENE)
+    rec = Recorder(tmp_path / "push.mcap")
+    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
+    try:
+        time.sleep(0.5)
+        ex = Executive(hal, scene, objects, recorder=rec)
+        pushed = threading.Event()
+
+        def on_transition(tr):
+            if tr.target is ExecState.EXECUTING and not pushed.is_set():
+                pushed.set()
+                threading.Timer(1.0, _push, (ep, "block", 0.0, -0.06)).start()
+
+        ex.sm.listeners.append(on_transition)
+        result = ex.run()
+    finally:
+        objects.close()
+        hal.shutdown()
+        rec.close()
+    assert result.status is TaskStatus.SUCCEEDED, result.detail
+    assert result.replans >= 1 and result.verified
+    events = [d for _, d in read_recording(rec.path).topic("/events") if d["kind"] == "violation"]
+    assert any(e["monitor"] in ("object_moved", "grasp") for e in events), events
+
+
+def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, tmp_path):
+    proc, ep = robot_process
+    scene = load_scene(SCENE)
+    rec = Recorder(tmp_path / "kill.mcap")
+    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
+    killed_at: list[float] = []
+    try:
+        time.sleep(0.5)
+        ex = Executive(hal, scene, objects, recorder=rec)
+
+        def on_transition(tr):
+            if tr.target is ExecState.EXECUTING:
+                def kill():
+                    killed_at.append(time.time())
+                    os.kill(proc.pid, signal.SIGKILL)
+                threading.Timer(2.0, kill).start()
+
+        ex.sm.listeners.append(on_transition)
+        result = ex.run()
+    finally:
+        objects.close()
+        hal.shutdown()
+    assert result.status is TaskStatus.FAULT, result.detail
+    fault = [t for t in ex.sm.history if t.target is ExecState.FAULT]
+    assert fault and killed_at
+    assert fault[0].t_wall - killed_at[0] < 0.2, f"FAULT {1e3 * (fault[0].t_wall - killed_at[0]):.0f} ms after the kill"
+    rec.close()
+    R = read_recording(rec.path)
+    assert [d["to"] for _, d in R.topic("/transitions")][-1] == "fault"
