@@ -19,14 +19,21 @@ from perception.registry import TagRegistry
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.types import pose_matrix
 
-__all__ = ["SimPerception", "perceive_image", "perceive_scene", "perturb_objects"]
+__all__ = [
+    "SimPerception",
+    "perceive_image",
+    "perceive_scene",
+    "perturb_objects",
+    "perturbed_poses",
+    "perturbed_scene",
+]
 
 log = logging.getLogger(__name__)
 
 
-def perturb_objects(world, scene: Scene, magnitude_m: float, seed: int) -> dict[str, np.ndarray]:
-    """Move each tagged object in the simulated world by up to ``magnitude_m`` in x/y and 0.3 rad in
-    yaw away from the scene file (the file is then wrong, as it is on a real robot). Returns the truth."""
+def perturbed_poses(scene: Scene, magnitude_m: float, seed: int) -> dict[str, np.ndarray]:
+    """T_world_object of each tagged object moved by up to ``magnitude_m`` in x/y and 0.3 rad in yaw
+    away from the scene file (the file is then wrong, as it is on a real robot)."""
     rng = np.random.default_rng(seed)
     truth = {}
     for obj in scene.objects:
@@ -34,9 +41,29 @@ def perturb_objects(world, scene: Scene, magnitude_m: float, seed: int) -> dict[
             continue
         x, y, z, yaw = obj.pose
         d = rng.uniform(-1.0, 1.0, 2) * magnitude_m
-        T = pose_matrix((x + d[0], y + d[1], z, yaw + rng.uniform(-0.3, 0.3)))
-        world.set_object_pose(obj.name, T)
-        truth[obj.name] = T
+        truth[obj.name] = pose_matrix((x + d[0], y + d[1], z, yaw + rng.uniform(-0.3, 0.3)))
+    return truth
+
+
+def perturbed_scene(scene: Scene, magnitude_m: float, seed: int) -> Scene:
+    """The world as it really is when the file is off by :func:`perturbed_poses`."""
+    from dataclasses import replace
+
+    truth = perturbed_poses(scene, magnitude_m, seed)
+    objects = tuple(
+        replace(o, pose=(float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), math.atan2(T[1, 0], T[0, 0])))
+        if (T := truth.get(o.name)) is not None
+        else o
+        for o in scene.objects
+    )
+    return replace(scene, objects=objects)
+
+
+def perturb_objects(world, scene: Scene, magnitude_m: float, seed: int) -> dict[str, np.ndarray]:
+    """Move the tagged objects of the simulated world to :func:`perturbed_poses`; returns the truth."""
+    truth = perturbed_poses(scene, magnitude_m, seed)
+    for name, T in truth.items():
+        world.set_object_pose(name, T)
     return truth
 
 

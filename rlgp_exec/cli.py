@@ -10,7 +10,6 @@ import argparse
 import json
 import logging
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,23 +18,6 @@ from rlgp_exec.errors import RlgpError
 __all__ = ["main"]
 
 log = logging.getLogger("rlgp_exec")
-
-# Subcommands of the DESIGN.md contract whose implementation has not landed yet, with the issue
-# that brings it. They parse their arguments and exit 2 with this message: never a fake result.
-PENDING: dict[str, str] = {
-    "run": "the executive loop (issue 9)",
-    "daemon": "the on-robot daemon (issue 9)",
-    "replay": "recordings (issue 9)",
-}
-
-
-def _pending(name: str) -> Callable[[argparse.Namespace], int]:
-    def run(_: argparse.Namespace) -> int:
-        print(f"rlgp-exec {name}: not available in this build: it needs {PENDING[name]}.", file=sys.stderr)
-        return 2
-
-    return run
-
 
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
@@ -79,6 +61,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from rlgp_exec.hal.bench import run_hal_bench
 
         result = run_hal_bench()
+    elif task == "executive":
+        from rlgp_exec.demo import scene_path
+        from rlgp_exec.executive.bench import run_executive_bench
+
+        task_scene = Path(args.scene_file) if args.scene_file else scene_path("sorting_hsr")
+        result = run_executive_bench(task_scene, task_scene, n_faults=args.faults, seed=args.seed or 0)
     elif Path(task).suffix == ".toml":
         from rlgp_exec.planning.bench import run_planner_bench
 
@@ -86,7 +74,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result = run_planner_bench(task, planners, args.seeds)
     else:
         print(
-            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, reachability SCENE, "
+            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, executive, "
+            "reachability SCENE, "
             "or a scene file (planners side by side: --planners rlgp,lgp --seeds N)",
             file=sys.stderr,
         )
@@ -186,6 +175,57 @@ def cmd_replay(args: argparse.Namespace) -> int:
          "collisions": list(report.collisions)},
     )
     return 0 if not report.collisions else 1
+
+
+def cmd_daemon(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from rlgp_exec.executive.daemon import Daemon, DaemonOptions
+    from rlgp_exec.executive.runner import RunOptions
+    from rlgp_exec.scene import load_scene
+
+    scene = load_scene(args.scene)
+    if scene.robot.name != args.robot:
+        raise RlgpError(f"--scene {args.scene} is for robot {scene.robot.name!r}, not --robot {args.robot!r}")
+    daemon = Daemon(
+        scene,
+        RunOptions(backend=args.backend, planner=args.planner, endpoint=args.endpoint, namespace=args.namespace),
+        DaemonOptions(args.listen, args.namespace, Path(args.record_dir) if args.record_dir else None),
+    )
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    daemon.start()
+    print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {args.listen}", flush=True)
+    try:
+        done.wait()
+    finally:
+        daemon.stop()
+    return 0
+
+
+def cmd_request(args: argparse.Namespace) -> int:
+    import time
+
+    from rlgp_exec.executive.daemon import request
+
+    payload = {"literals": args.literals} if args.what == "goal" else None
+    reply = request(args.endpoint, args.what, payload, args.namespace)
+    print(json.dumps(reply, indent=2))
+    if args.what == "goal" and args.wait and reply.get("ok"):
+        task = reply["task"]
+        while True:
+            time.sleep(0.5)
+            st = request(args.endpoint, "status", None, args.namespace)
+            last = st.get("last") or {}
+            if last.get("task") == task:
+                print(json.dumps(last, indent=2))
+                return 0 if last.get("status") == "succeeded" else 1
+            if not st.get("ok"):
+                print(json.dumps(st, indent=2))
+                return 1
+    return 0 if reply.get("ok") else 1
 
 
 # ---------------------------------------------------------------------------------- rg
@@ -324,10 +364,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json")
     s.set_defaults(func=cmd_run)
 
-    s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability (planners and executive later)")
+    s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability, executive, planners")
     s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
     s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability`")
     s.add_argument("--samples", type=int, default=200, help="reachability graph nodes")
+    s.add_argument("--faults", type=int, default=50, help="bench executive: faults to inject")
     s.add_argument("--planners")
     s.add_argument("--seeds", type=int, default=20)
     s.add_argument("--seed", type=int)
@@ -355,10 +396,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
     s.set_defaults(func=cmd_sim_robot)
 
-    s = sub.add_parser("daemon", help="the on-robot execution daemon")
+    s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")
     s.add_argument("--robot", choices=["hsr", "pr2"], default="hsr")
     s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim")
-    s.set_defaults(func=_pending("daemon"))
+    s.add_argument("--scene", required=True, help="the robot's environment (fixtures, objects) as a scene file")
+    s.add_argument("--endpoint", help="zenoh backend: the robot's endpoint")
+    s.add_argument("--listen", default="tcp/127.0.0.1:7450", help="where clients connect (goals, status)")
+    s.add_argument("--namespace", default="", help="key prefix of the daemon's (and the robot's) key space")
+    s.add_argument("--record-dir", help="write one MCAP recording per task here")
+    s.add_argument("--planner", default="rlgp")
+    s.set_defaults(func=cmd_daemon)
+
+    s = sub.add_parser("request", help="ask a running daemon: goal LITERAL..., cancel, estop, rearm, status")
+    s.add_argument("what", choices=["goal", "cancel", "estop", "rearm", "status"])
+    s.add_argument("literals", nargs="*", help="for goal: literals such as '(on block tray)'")
+    s.add_argument("--endpoint", default="tcp/127.0.0.1:7450")
+    s.add_argument("--namespace", default="")
+    s.add_argument("--wait", action="store_true", help="for goal: wait for the task's result")
+    s.set_defaults(func=cmd_request)
 
     s = sub.add_parser("rg", help="build/draw a scene's reachability graph")
     s.add_argument("scene")

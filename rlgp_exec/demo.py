@@ -1,14 +1,15 @@
-"""The headless dry run behind ``make demo``: sense, plan and act on the HSR sorting task.
+"""The headless dry run behind ``make demo``: sense, plan and act on an HSR task, across a real process
+and transport boundary.
 
-Sense: the head camera looks around for the tagged blocks (rendered images, AprilTags, PnP, fusion)
-in a world whose blocks were moved away from where the scene file says. Plan: R-LGP on the perceived
-scene (symbolic search guided by the reachability graph, keyframe NLP, guided paths, validated by
-replay). Act: every phase timed by TOPPRA and streamed at 100 Hz by Ruckig to the simulated HSR
-through the HAL (sim backend: arm setpoints, base twist, force-limited grasps); the blocks must end
-on their trays in that simulation, with no collisions on the way.
+The world: the scene file with its tagged objects moved up to 4 cm away (the file is wrong, as on a
+real robot). Sense: the head camera looks around (rendered images, AprilTags, PnP, fusion) and the
+perceived scene replaces the file's poses. Robot: ``sim-robot`` runs the true world in its own process
+and speaks the HSR's Zenoh interface. Executive: SENSE (the robot's state; object poses from the
+server's mocap stream), PLAN (R-LGP, validated by replay), TIME (TOPPRA), ACT (Ruckig at 100 Hz over
+Zenoh, monitored), VERIFY (the goal literals on the sensed poses). Everything is recorded to MCAP; the
+base path is plotted from the recording.
 
-Each stage that exists runs for real and reports what it measured; stages whose layer has not
-landed are listed as such (never faked). The report's ``ok`` is False if any stage that ran failed.
+Each stage reports what it measured; the report's ``ok`` is False if any stage failed.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ __all__ = ["DemoReport", "Stage", "run_demo"]
 log = logging.getLogger(__name__)
 
 DEMO_SCENE = "sorting_hsr"
+PERTURB_M = 0.04  # [m] how far the true objects are from the file
 
 
 @dataclass
@@ -77,90 +79,161 @@ def scene_path(name: str) -> Path:
     return path
 
 
-def run_demo(out: Path, seed: int = 0) -> DemoReport:
-    """Run every stage this build has on the HSR table-clearing scene; files go to ``out``."""
+def _plot_base_path(recording: Path, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from rlgp_exec.executive.recorder import read_recording
+
+    rec = read_recording(recording)
+    xy = [d["base"][:2] for _, d in rec.topic("/robot_state")]
+    scenes = rec.topic("/scene")
+    fig, ax = plt.subplots(figsize=(6, 6))
+    if scenes:
+        for f in scenes[0][1]["fixture"]:
+            (x, y, _, _), (sx, sy, _) = f["pose"], f["size"]
+            ax.add_patch(plt.Rectangle((x - sx / 2, y - sy / 2), sx, sy, color="0.8"))
+        for o in scenes[-1][1]["object"]:
+            ax.plot(o["pose"][0], o["pose"][1], "s", color=o["color"] if o["color"] != "wood" else "brown")
+    if xy:
+        xs, ys = zip(*xy, strict=True)
+        ax.plot(xs, ys, "-", color="tab:blue", lw=1.5, label="base (odometry)")
+        ax.plot(xs[0], ys[0], "o", color="tab:green", label="start")
+        ax.plot(xs[-1], ys[-1], "x", color="tab:red", label="end")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("base path (from the recording)")
+    fig.savefig(out, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+
+
+def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoReport:
+    """Run the dry run on a shipped HSR scene; files go to ``out``."""
+    import socket
+    import subprocess
+    import sys
+
     import cv2
 
     from rlgp_exec.scene import load_scene
+    from rlgp_exec.scene.serialize import scene_to_toml
     from sim.render import render_world
     from sim.world import build_world
 
     out.mkdir(parents=True, exist_ok=True)
-    report = DemoReport(DEMO_SCENE)
+    report = DemoReport(scene_name)
     state: dict[str, object] = {}
 
     def load() -> str:
-        scene = load_scene(scene_path(DEMO_SCENE))  # as the file says; the world then moves the blocks
-        state["scene"] = scene
+        from perception.runner import perturbed_scene
+
+        scene = load_scene(scene_path(scene_name))
+        truth = perturbed_scene(scene, PERTURB_M, seed)
+        path = out / "demo_world.toml"
+        path.write_text(scene_to_toml(truth))
+        state["scene"], state["truth"], state["truth_path"] = scene, truth, path
         goal = " ".join(map(str, scene.goal.literals))
         return f"{len(scene.fixtures)} fixtures, {len(scene.objects)} objects, goal {goal}"
 
-    def world() -> str:
-        w = build_world(state["scene"])  # type: ignore[arg-type]
-        state["world"] = w
-        bad = w.penetrations()
-        if bad:
-            raise RlgpError(f"initial collisions: {bad}")
-        return f"built; no initial collisions; robot q = {w.robot_model.nq} joints"
-
     def pictures() -> str:
-        w = state["world"]
-        for view in ("overview", "robot"):
-            rgb = render_world(w, 960 if view == "overview" else 640, 720 if view == "overview" else 480, view)  # type: ignore[arg-type]
-            path = out / f"demo_{view}.png"
-            cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-            report.files.append(path)
-        return "overview and head-camera images rendered"
+        w = build_world(state["truth"])  # type: ignore[arg-type]
+        try:
+            bad = w.penetrations()
+            if bad:
+                raise RlgpError(f"initial collisions: {bad}")
+            for view in ("overview", "robot"):
+                rgb = render_world(w, 960 if view == "overview" else 640, 720 if view == "overview" else 480, view)
+                path = out / f"demo_{view}.png"
+                cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+                report.files.append(path)
+        finally:
+            w.close()
+        return "true world built (no collisions); overview and head-camera images rendered"
 
     def perceive() -> str:
         from perception.runner import perceive_scene
 
-        res = perceive_scene(state["scene"], perturb_m=0.04, seed=seed)  # type: ignore[arg-type]
+        res = perceive_scene(state["scene"], perturb_m=PERTURB_M, seed=seed)  # type: ignore[arg-type]
         if res.missing:
             raise RlgpError(f"not seen: {sorted(res.missing)}")
         state["perceived"] = res.scene
         errs = ", ".join(f"{n} {e:.1f} mm" for n, e in sorted(res.errors_mm.items()))
-        return f"{res.views} views; blocks moved up to 4 cm from the file, found within {errs}"
+        return f"{res.views} views; objects {PERTURB_M * 100:.0f} cm off the file, found within {errs}"
 
-    def plan() -> str:
-        from rlgp_exec.planning.rlgp import plan_scene
+    def robot() -> str:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        ep = f"tcp/127.0.0.1:{port}"
+        cmd = [
+            sys.executable,
+            "-m",
+            "sim.robot_server",
+            "--robot",
+            "hsr",
+            "--transport",
+            "zenoh",
+            "--endpoint",
+            ep,
+            "--scene",
+            str(state["truth_path"]),
+        ]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        state["proc"], state["endpoint"] = proc, ep
+        line = proc.stdout.readline() if proc.stdout else ""
+        if "ready" not in line:
+            err = proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
+            raise RlgpError(f"sim-robot did not start: {line.strip()} {err.strip()}")
+        return f"sim-robot (pid {proc.pid}) serving the HSR's Zenoh interface on {ep}"
 
-        p = plan_scene(state["perceived"])  # type: ignore[arg-type]
-        if not p.success:
-            raise RlgpError(f"R-LGP: {p.reason}")
-        state["plan"] = p
+    def execute() -> str:
+        from rlgp_exec.executive.runner import RunOptions, run_task
+
+        rec = out / "demo.mcap"
+        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed)  # type: ignore[arg-type]
+        result, _ = run_task(state["perceived"], opts)  # type: ignore[arg-type]
+        report.files.append(rec)
+        state["recording"] = rec
+        if not result.ok:
+            raise RlgpError(f"{result.status.value}: {result.detail}")
         return (
-            f"R-LGP: {' '.join(p.actions)} in {p.planning_time_s:.1f} s ({p.n_nlp} keyframe NLPs, "
-            f"{p.nodes_expanded} nodes); replay collision-free, goal met; base path {p.base_path_length_m:.1f} m"
+            f"{' '.join(result.actions)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
+            f"{result.replans} replan(s)), first motion after {result.time_to_first_motion_s:.1f} s, execution "
+            f"{result.execution_time_s:.1f} s, base travelled {result.base_distance_m:.1f} m; {result.detail}"
         )
 
-    def act() -> str:
-        from rlgp_exec.demo_execute import execute_plan
+    def plot() -> str:
+        from rlgp_exec.executive.replay import replay
 
-        result = execute_plan(state["perceived"], state["plan"])  # type: ignore[arg-type]
-        if not result.ok:
-            raise RlgpError(result.summary())
-        return result.summary()
+        png = out / "demo_base_path.png"
+        _plot_base_path(state["recording"], png)  # type: ignore[arg-type]
+        report.files.append(png)
+        r = replay(state["recording"])  # type: ignore[arg-type]
+        if r.collisions:
+            raise RlgpError(f"the recording replays with collisions: {list(r.collisions)}")
+        return f"recording replayed in PyBullet: {r.states} states, {r.duration_s:.1f} s, no collisions"
 
     try:
         for name, fn in (
             ("scene", load),
-            ("world", world),
-            ("render", pictures),
+            ("world", pictures),
             ("perceive", perceive),
-            ("plan", plan),
-            ("time+act", act),
+            ("robot", robot),
+            ("executive", execute),
+            ("replay", plot),
         ):
-            if name == "perceive":
-                w = state.pop("world", None)
-                if w is not None:
-                    w.close()  # type: ignore[attr-defined]
             if not _stage(report, name, fn):
                 break
     finally:
-        w = state.get("world")
-        if w is not None:
-            w.close()  # type: ignore[attr-defined]
-    for name, issue in (("executive", "monitoring, faults, recording: issue 9"),):
-        report.stages.append(Stage(name, None, f"not in this build ({issue})"))
+        proc = state.get("proc")
+        if proc is not None:
+            proc.terminate()  # type: ignore[attr-defined]
+            try:
+                proc.wait(10)  # type: ignore[attr-defined]
+            except subprocess.TimeoutExpired:
+                proc.kill()  # type: ignore[attr-defined]
     return report

@@ -311,3 +311,37 @@ def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, t
     rec.close()
     R = read_recording(rec.path)
     assert [d["to"] for _, d in R.topic("/transitions")][-1] == "fault"
+
+
+# ---------------------------------------------------------------------------------- the daemon
+def test_daemon_answers_bad_requests_runs_a_goal_and_keeps_serving(tmp_path):
+    from rlgp_exec.executive.daemon import Daemon, DaemonOptions, request
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    daemon = Daemon(load_scene(SCENE), RunOptions(backend="sim"), DaemonOptions(ep, "lab1", tmp_path))
+    daemon.start()
+    try:
+        ask = lambda what, payload=None: request(ep, what, payload, namespace="lab1")  # noqa: E731
+        assert ask("status")["state"] == "idle"
+        for bad, match in [
+            ({"literals": ["(on mug tray)"]}, "unknown object 'mug'"),
+            ({"literals": "(on block tray)"}, "non-empty list"),
+            ({"goal": ["(on block tray)"]}, "expected"),
+            ({"literals": ["(on block"]}, "is not a literal"),
+        ]:
+            r = ask("goal", bad)
+            assert r["ok"] is False and match in r["error"], (bad, r)
+        assert ask("rearm")["ok"] is False  # not e-stopped: a clear refusal
+        assert request(ep, "status", namespace="other")["ok"] is False  # outside its key space: nobody answers
+        r = ask("goal", {"literals": ["(on block tray)"]})
+        assert r["ok"] and r["task"] == 1
+        end = time.monotonic() + 120
+        while time.monotonic() < end and (ask("status").get("last") or {}).get("task") != 1:
+            time.sleep(0.2)
+        last = ask("status")["last"]
+        assert last["status"] == "succeeded" and last["verified"], last
+        assert len(list(tmp_path.glob("task0001-*.mcap"))) == 1
+        assert ask("estop")["ok"] and ask("status")["state"] == "estopped"
+        assert ask("rearm")["ok"] and ask("status")["state"] == "idle"
+    finally:
+        daemon.stop()

@@ -107,18 +107,20 @@ def test_cli_reports_bad_scene_files_with_exit_code_2(tmp_path, capsys):
     assert "bad.toml" in err and "robot" in err
 
 
-def test_pending_subcommands_say_what_is_missing(capsys):
-    assert main(["run", str(scene_path("sorting_pr2"))]) == 2
-    assert "issue" in capsys.readouterr().err
+def test_run_refuses_perception_off_the_simulator(capsys):
+    assert main(["run", str(scene_path("sorting_hsr")), "--perceive", "--backend", "zenoh"]) == 2
+    assert "--perceive" in capsys.readouterr().err
 
 
-def test_demo_runs_every_available_stage_and_writes_its_pictures(tmp_path):
+def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
+    """The dry run end to end: perception, a sim-robot process over Zenoh, R-LGP, TOPPRA + Ruckig."""
     from rlgp_exec.demo import run_demo
+    from rlgp_exec.executive import read_recording
 
     report = run_demo(tmp_path, seed=1)
     assert report.ok, report.text()
-    ran = [s.name for s in report.stages if s.ok]
-    assert ran == ["scene", "world", "render", "perceive", "plan", "time+act"]
-    assert "goal met in the simulation" in report.text()
+    assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "executive", "replay"]
+    assert "goal holds in the sensed world" in report.text()
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
-    assert "not in this build" in report.text()  # missing layers are reported, never faked
+    rec = read_recording(tmp_path / "demo.mcap")
+    assert rec.complete and rec.topic("/events")[-1][1]["status"] == "succeeded"

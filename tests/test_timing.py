@@ -68,6 +68,23 @@ def test_time_optimal_beats_the_straight_line_bound_exactly():
     assert res.trajectory.duration == pytest.approx(2.5, rel=1e-3)
 
 
+def test_a_path_reversing_at_a_waypoint_stops_there_and_stays_inside_the_limits():
+    """An approach straight up then down again (a cusp): no smooth path passes it, so the motion comes
+    to rest at the waypoint; it is timed as two rest-to-rest pieces, never reported infeasible."""
+    limits = make_limits(3, 1.0, 2.0, 20.0)
+    path = np.array([[0.0, 0.0, 0.0], [0.5, 1.0, 0.5], [0.5, 1.0, 0.38]])
+    res = time_parameterize(path, limits)
+    assert res.ok, res.reason
+    traj = res.trajectory
+    assert len(traj.pieces) == 2
+    t_cusp = traj.pieces[0].duration
+    q, dq, ddq = traj.sample_many(np.array([t_cusp]))
+    assert np.allclose(q[0], path[1], atol=1e-6) and np.abs(dq[0]).max() < 1e-6
+    ts = np.linspace(0.0, traj.duration, 2001)
+    _, dq, ddq = traj.sample_many(ts)
+    assert np.all(np.abs(dq) <= 1.0 * (1 + TOL)) and np.all(np.abs(ddq) <= 2.0 * (1 + TOL))
+
+
 def test_base_velocity_limits_hold_in_the_base_frame_at_yaw_90():
     hsr = load_robot("hsr")
     limits = hsr.limits.subset(["base_x", "base_y", "base_yaw"])

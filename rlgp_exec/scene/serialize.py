@@ -7,7 +7,7 @@ from typing import Any
 
 from rlgp_exec.scene.types import Scene
 
-__all__ = ["scene_to_dict"]
+__all__ = ["scene_to_dict", "scene_to_toml"]
 
 
 def scene_to_dict(scene: Scene) -> dict[str, Any]:
@@ -52,3 +52,31 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "region": regions,
         "goal": {"literals": [str(lit) for lit in scene.goal.literals]},
     }
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def scene_to_toml(scene: Scene) -> str:
+    """``scene`` as a scene file (TOML) that ``load_scene`` reads back to an equal Scene."""
+    data = scene_to_dict(scene)
+    out = [f"# written by rlgp-exec from {scene.source}"]
+    for table in ("scene", "robot", "goal"):
+        out.append(f"\n[{table}]")
+        out += [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]
+    for array in ("fixture", "region", "object"):
+        for item in data[array]:
+            out.append(f"\n[[{array}]]")
+            out += [f"{k} = {_toml_value(v)}" for k, v in item.items()]
+    return "\n".join(out) + "\n"

@@ -1,0 +1,289 @@
+"""``rlgp-exec daemon``: the on-robot execution daemon.
+
+One executive, one robot, one task at a time; further goals wait in a queue. Requests arrive as Zenoh
+queries under the daemon's key space (``<namespace>/rlgp/executive/...``), each answered with JSON:
+
+=========================  ==================================================  ===========================
+key                        payload                                             reply
+=========================  ==================================================  ===========================
+``.../goal``               ``{"literals": ["(on block tray)", ...]}``          ``{"ok", "task", "queued"}``
+``.../cancel``             (none)                                              ``{"ok", "cancelled"}``
+``.../estop``              (none)                                              ``{"ok"}``
+``.../rearm``              (none)                                              ``{"ok"}`` or an error
+``.../status``             (none)                                              the status (below)
+=========================  ==================================================  ===========================
+
+A bad request gets ``{"ok": false, "error": "..."}`` naming what is wrong; the daemon keeps serving.
+The status — state, current task, queue, last result — is also published on ``.../status`` at every
+transition and result. On SIGTERM/SIGINT the daemon cancels the running task (a jerk-limited stop),
+brings the robot to rest, finishes the recording and exits 0.
+
+The daemon declares nothing outside its key space. On a real network, restrict who may put goals with
+Zenoh's access control and TLS (see README, "Daemon").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.executive.executive import Executive, TaskResult
+from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.runner import RunOptions, connect
+from rlgp_exec.executive.states import ExecState, Transition
+from rlgp_exec.scene import Scene
+from rlgp_exec.scene.literals import parse_goal
+
+__all__ = ["KEYS", "Daemon", "DaemonOptions"]
+
+log = logging.getLogger(__name__)
+
+KEYS = ("goal", "cancel", "estop", "rearm", "status")
+MAX_QUEUE = 8
+MAX_PAYLOAD = 64 * 1024  # [bytes] a goal request larger than this is refused unread
+
+
+@dataclass(frozen=True)
+class DaemonOptions:
+    listen: str = "tcp/127.0.0.1:7450"  # where clients connect
+    namespace: str = ""  # key prefix of the daemon's key space
+    record_dir: Path | None = None  # one MCAP per task
+
+
+@dataclass(frozen=True)
+class _Task:
+    id: int
+    literals: tuple[str, ...]
+
+
+class Daemon:
+    def __init__(self, scene: Scene, run: RunOptions, opts: DaemonOptions) -> None:
+        self.scene, self.run_opts, self.opts = scene, run, opts
+        prefix = f"{opts.namespace.strip('/')}/" if opts.namespace.strip("/") else ""
+        self.base = f"{prefix}rlgp/executive"
+        self.queue: queue.Queue[_Task | None] = queue.Queue(MAX_QUEUE)
+        self.current: _Task | None = None
+        self.last: dict[str, Any] | None = None
+        self.served = 0
+        self._next_id = 1
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._session: Any = None
+        self._decls: list[Any] = []
+        self.executive: Executive | None = None
+        self._hal: Any = None
+        self._objects: Any = None
+        self._worker: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        import zenoh
+
+        from rlgp_exec.hal.zenoh_keys import session_config
+
+        self._hal, self._objects = connect(self.scene, self.run_opts)
+        self.executive = Executive(
+            self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed
+        )
+        self.executive.sm.listeners.append(self._on_transition)
+        self._session = zenoh.open(session_config(listen=self.opts.listen))
+        self._pub = self._session.declare_publisher(f"{self.base}/status")
+        handlers = {
+            "goal": self._on_goal,
+            "cancel": self._on_cancel,
+            "estop": self._on_estop,
+            "rearm": self._on_rearm,
+            "status": lambda _: self.status(),
+        }
+        for name, fn in handlers.items():
+            self._decls.append(self._session.declare_queryable(f"{self.base}/{name}", self._guard(fn)))
+        self._worker = threading.Thread(target=self._work, name="executive", daemon=True)
+        self._worker.start()
+        log.info("daemon: serving %s/{%s} on %s", self.base, ",".join(KEYS), self.opts.listen)
+
+    def stop(self) -> None:
+        """Graceful: cancel the running task (jerk-limited stop), wait for rest, close everything."""
+        self._stop.set()
+        if self.executive is not None:
+            self.executive.cancel()
+        with contextlib.suppress(queue.Full):
+            self.queue.put_nowait(None)
+        if self._worker is not None:
+            self._worker.join(timeout=15.0)
+        for d in self._decls:
+            try:
+                d.undeclare()
+            except Exception as e:  # closing anyway
+                log.debug("undeclare: %s", e)
+        if self._session is not None:
+            self._session.close()
+        if self._objects is not None:
+            self._objects.close()
+        if self._hal is not None:
+            self._hal.shutdown()
+        log.info("daemon: stopped after %d task(s)", self.served)
+
+    # ------------------------------------------------------------------ requests
+    def _guard(self, fn):
+        def handler(query: Any) -> None:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                reply = fn(payload) if len(payload) <= MAX_PAYLOAD else _err(f"payload over {MAX_PAYLOAD} bytes")
+            except Exception as e:  # a request never takes the daemon down
+                log.exception("daemon: request failed")
+                reply = _err(f"internal error: {type(e).__name__}: {e}")
+            query.reply(query.key_expr, json.dumps(reply).encode())
+
+        return handler
+
+    def _on_goal(self, payload: bytes) -> dict[str, Any]:
+        if self._stop.is_set():
+            return _err("shutting down")
+        try:
+            req = json.loads(payload or b"null")
+        except ValueError as e:
+            return _err(f"goal: not JSON: {e}")
+        if not isinstance(req, dict) or set(req) - {"literals"} or "literals" not in req:
+            return _err('goal: expected {"literals": ["(on block tray)", ...]}')
+        lits = req["literals"]
+        if not isinstance(lits, list) or not lits or not all(isinstance(x, str) for x in lits):
+            return _err("goal: literals must be a non-empty list of strings")
+
+        def fail(where: str, msg: str) -> SceneError:
+            return SceneError("goal", where, msg)
+
+        try:
+            parse_goal(lits, self.scene, fail)
+        except SceneError as e:
+            return _err(str(e))
+        with self._lock:
+            task = _Task(self._next_id, tuple(lits))
+            try:
+                self.queue.put_nowait(task)
+            except queue.Full:
+                return _err(f"queue full ({MAX_QUEUE} tasks waiting)")
+            self._next_id += 1
+        return {"ok": True, "task": task.id, "queued": self.queue.qsize()}
+
+    def _on_cancel(self, _: bytes) -> dict[str, Any]:
+        dropped = 0
+        while True:
+            try:
+                t = self.queue.get_nowait()
+            except queue.Empty:
+                break
+            if t is None:
+                self.queue.put_nowait(None)
+                break
+            dropped += 1
+        assert self.executive is not None
+        self.executive.cancel()
+        return {"ok": True, "cancelled": self.current.id if self.current else None, "dropped": dropped}
+
+    def _on_estop(self, _: bytes) -> dict[str, Any]:
+        assert self.executive is not None
+        self.executive.estop()
+        return {"ok": True}
+
+    def _on_rearm(self, _: bytes) -> dict[str, Any]:
+        assert self.executive is not None
+        try:
+            self.executive.rearm()
+        except RlgpError as e:
+            return _err(str(e))
+        return {"ok": True}
+
+    def status(self) -> dict[str, Any]:
+        ex = self.executive
+        return {
+            "ok": True,
+            "state": ex.sm.state.value if ex else "starting",
+            "task": None if self.current is None else {"id": self.current.id, "goal": list(self.current.literals)},
+            "queued": self.queue.qsize(),
+            "served": self.served,
+            "last": self.last,
+        }
+
+    def _publish(self) -> None:
+        try:
+            self._pub.put(json.dumps(self.status()).encode())
+        except Exception as e:  # the session is closing
+            log.debug("status publish: %s", e)
+
+    def _on_transition(self, tr: Transition) -> None:
+        self._publish()
+
+    # ------------------------------------------------------------------ the worker
+    def _work(self) -> None:
+        assert self.executive is not None
+        while not self._stop.is_set():
+            task = self.queue.get()
+            if task is None or self._stop.is_set():
+                break
+            self.current = task
+            result = self._run(task)
+            self.last = {"task": task.id, **result.as_dict()}
+            self.current = None
+            self.served += 1
+            self._publish()
+
+    def _run(self, task: _Task) -> TaskResult:
+        assert self.executive is not None
+        ex = self.executive
+        recorder = None
+        if self.opts.record_dir is not None:
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            recorder = Recorder(self.opts.record_dir / f"task{task.id:04d}-{stamp}.mcap")
+        ex.recorder = recorder
+        ex.actor.recorder = recorder
+        listener = None
+        if recorder is not None:
+            listener = lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall)  # noqa: E731
+            ex.sm.listeners.append(listener)
+        try:
+            if ex.sm.state is ExecState.FAULT:
+                ex.reset()  # a new goal is the operator's acknowledgement
+            return ex.run(list(task.literals))
+        finally:
+            if listener is not None:
+                ex.sm.listeners.remove(listener)
+            ex.recorder = ex.actor.recorder = None
+            if recorder is not None:
+                recorder.close()
+
+
+def _err(msg: str) -> dict[str, Any]:
+    return {"ok": False, "error": msg}
+
+
+def request(
+    endpoint: str, what: str, payload: dict[str, Any] | None = None, namespace: str = "", timeout_s: float = 5.0
+) -> dict[str, Any]:
+    """A client call: one query to a daemon at ``endpoint``; the JSON reply (or an error dict)."""
+    import zenoh
+
+    from rlgp_exec.hal.zenoh_keys import session_config
+
+    if what not in KEYS:
+        raise RlgpError(f"unknown daemon request {what!r}; valid: {list(KEYS)}")
+    prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
+    s = zenoh.open(session_config(connect=endpoint))
+    try:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            body = json.dumps(payload).encode() if payload is not None else None
+            for r in s.get(f"{prefix}rlgp/executive/{what}", payload=body, timeout=max(0.1, end - time.monotonic())):
+                if r.ok is not None:
+                    return json.loads(r.ok.payload.to_bytes())
+            time.sleep(0.1)  # not connected yet
+        return _err(f"no daemon answered at {endpoint} within {timeout_s} s")
+    finally:
+        s.close()
