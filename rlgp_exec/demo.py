@@ -113,10 +113,6 @@ def _plot_base_path(recording: Path, out: Path) -> None:
 
 def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoReport:
     """Run the dry run on a shipped HSR scene; files go to ``out``."""
-    import socket
-    import subprocess
-    import sys
-
     import cv2
 
     from rlgp_exec.scene import load_scene
@@ -165,30 +161,11 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         return f"{res.views} views; objects {PERTURB_M * 100:.0f} cm off the file, found within {errs}"
 
     def robot() -> str:
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        ep = f"tcp/127.0.0.1:{port}"
-        cmd = [
-            sys.executable,
-            "-m",
-            "sim.robot_server",
-            "--robot",
-            "hsr",
-            "--transport",
-            "zenoh",
-            "--endpoint",
-            ep,
-            "--scene",
-            str(state["truth_path"]),
-        ]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        state["proc"], state["endpoint"] = proc, ep
-        line = proc.stdout.readline() if proc.stdout else ""
-        if "ready" not in line:
-            err = proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
-            raise RlgpError(f"sim-robot did not start: {line.strip()} {err.strip()}")
-        return f"sim-robot (pid {proc.pid}) serving the HSR's Zenoh interface on {ep}"
+        from sim.robot_process import RobotProcess
+
+        robot = RobotProcess(state["truth_path"])  # type: ignore[arg-type]
+        state["proc"], state["endpoint"] = robot, robot.endpoint
+        return f"sim-robot (pid {robot.pid}) serving the HSR's Zenoh interface on {robot.endpoint}"
 
     def execute() -> str:
         from rlgp_exec.executive.runner import RunOptions, run_task
@@ -229,11 +206,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
             if not _stage(report, name, fn):
                 break
     finally:
-        proc = state.get("proc")
-        if proc is not None:
-            proc.terminate()  # type: ignore[attr-defined]
-            try:
-                proc.wait(10)  # type: ignore[attr-defined]
-            except subprocess.TimeoutExpired:
-                proc.kill()  # type: ignore[attr-defined]
+        robot = state.get("proc")
+        if robot is not None:
+            robot.stop()  # type: ignore[attr-defined]
     return report

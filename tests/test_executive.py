@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import textwrap
@@ -37,15 +36,10 @@ from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.hal import Lifecycle, make_backend
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene, scene_from_dict, scene_to_dict
+from sim.robot_process import RobotProcess, free_endpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "tests" / "data" / "shelf_hsr.toml"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 # ---------------------------------------------------------------------------------- units
@@ -225,19 +219,9 @@ def test_without_sensing_the_result_says_the_goal_was_not_verified(tmp_path):
 # ---------------------------------------------------------------------------------- over Zenoh
 @pytest.fixture
 def robot_process():
-    ep = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sim.robot_server", "--robot", "hsr", "--transport", "zenoh",
-         "--endpoint", ep, "--scene", str(SCENE)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    assert proc.stdout is not None
-    line = proc.stdout.readline()
-    assert "ready" in line, proc.stderr.read() if proc.poll() is not None else line  # type: ignore[union-attr]
-    yield proc, ep
-    if proc.poll() is None:
-        proc.terminate()
-        proc.wait(10)
+    robot = RobotProcess(SCENE)
+    yield robot.proc, robot.endpoint
+    robot.stop()
 
 
 def _push(ep: str, obj: str, dx: float, dy: float) -> None:
@@ -317,7 +301,7 @@ def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, t
 def test_daemon_answers_bad_requests_runs_a_goal_and_keeps_serving(tmp_path):
     from rlgp_exec.executive.daemon import Daemon, DaemonOptions, request
 
-    ep = f"tcp/127.0.0.1:{free_port()}"
+    ep = free_endpoint()
     daemon = Daemon(load_scene(SCENE), RunOptions(backend="sim"), DaemonOptions(ep, "lab1", tmp_path))
     daemon.start()
     try:

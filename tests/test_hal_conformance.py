@@ -12,7 +12,6 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -22,6 +21,7 @@ import numpy as np
 import pytest
 
 from rlgp_exec.hal import CommandStatus, GripperCommand, HalError, Lifecycle, RobotInterface, make_backend
+from sim.robot_process import RobotProcess
 from sim.robot_server_scene import GRASP_JOINTS, grasp_scene, write_grasp_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -104,28 +104,8 @@ def harness(request, tmp_path) -> Iterator[Harness]:
         hal.shutdown()
     elif kind == "zenoh":
         scene = write_grasp_scene(tmp_path / "grasp.toml")
-        ep = f"tcp/127.0.0.1:{free_port()}"
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "sim.robot_server",
-                "--robot",
-                "hsr",
-                "--transport",
-                "zenoh",
-                "--endpoint",
-                ep,
-                "--scene",
-                str(scene),
-            ],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        line = proc.stdout.readline()  # type: ignore[union-attr]
-        assert "ready" in line, (line, proc.stderr.read() if proc.poll() is not None else "")  # type: ignore[union-attr]
+        robot = RobotProcess(scene)
+        proc, ep = robot.proc, robot.endpoint
         hal = make_backend("zenoh", endpoint=ep, heartbeat_timeout=HB)
         hal.configure()
         assert hal.wait_for_robot(15.0), "no state from the robot server"

@@ -11,8 +11,6 @@ scene, lifts it, releases it, and exercises the e-stop. It prints what it sees.
 from __future__ import annotations
 
 import argparse
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -24,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rlgp_exec.hal import GripperCommand, make_backend  # noqa: E402
+from sim.robot_process import RobotProcess  # noqa: E402
 from sim.robot_server_scene import grasp_scene, write_grasp_scene  # noqa: E402
 
 
@@ -46,30 +45,11 @@ def main() -> int:
     args = ap.parse_args()
     cleanup = []
     if args.transport == "zenoh":
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
         scene = write_grasp_scene(Path(tempfile.mkdtemp()) / "grasp.toml")
-        proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "sim.robot_server",
-                "--robot",
-                "hsr",
-                "--transport",
-                "zenoh",
-                "--endpoint",
-                ep,
-                "--scene",
-                str(scene),
-            ],
-            cwd=ROOT,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        print(proc.stdout.readline().strip())
-        cleanup.append(proc.terminate)
+        robot = RobotProcess(scene)
+        ep = robot.endpoint
+        print(robot.ready_line)
+        cleanup.append(robot.stop)
         hal = make_backend("zenoh", endpoint=ep)
     else:
         import can

@@ -15,50 +15,22 @@ import logging
 import os
 import platform
 import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
-from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.act import Actor, ActStatus, Signals
 from rlgp_exec.executive.runner import RunOptions, connect, run_task
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.scene import load_scene
 from rlgp_exec.timing import TRACKING_HEADROOM, time_parameterize
+from sim.robot_process import RobotProcess
 
 __all__ = ["run_executive_bench"]
 
 log = logging.getLogger(__name__)
-
-
-def _server(scene_path: Path) -> tuple[subprocess.Popen[str], str]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        ep = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-    cmd = [
-        sys.executable,
-        "-m",
-        "sim.robot_server",
-        "--robot",
-        "hsr",
-        "--transport",
-        "zenoh",
-        "--endpoint",
-        ep,
-        "--scene",
-        str(scene_path),
-    ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    line = proc.stdout.readline() if proc.stdout else ""
-    if "ready" not in line:
-        proc.kill()
-        raise RlgpError(f"sim-robot did not start: {line!r}")
-    return proc, ep
 
 
 def _p(xs: list[float], q: float) -> float | None:
@@ -67,7 +39,8 @@ def _p(xs: list[float], q: float) -> float | None:
 
 def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list[str]]:
     scene = load_scene(scene_path)
-    proc, ep = _server(scene_path)
+    robot = RobotProcess(scene_path)
+    proc, ep = robot.proc, robot.endpoint
     reactions: list[float] = []
     failures: list[str] = []
     hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
@@ -123,18 +96,13 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
             time.sleep(0.2)
     finally:
         hal.shutdown()
-        proc.terminate()
-        proc.wait(10)
+        robot.stop()
     return reactions, failures
 
 
 def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50, seed: int = 0) -> dict:
-    proc, ep = _server(task_scene)
-    try:
-        result, ex = run_task(load_scene(task_scene), RunOptions(backend="zenoh", endpoint=ep, seed=seed))
-    finally:
-        proc.terminate()
-        proc.wait(10)
+    with RobotProcess(task_scene) as robot:
+        result, ex = run_task(load_scene(task_scene), RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed))
     errs = ex.actor.clock.period_err_ms
     reactions, failures = _fault_reactions(fault_scene, n_faults)
     return {
