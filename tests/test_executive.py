@@ -192,6 +192,8 @@ def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_e
         (["(on block"], "is not a literal"),
         (["(hover block tray)"], "unknown predicate 'hover'"),
         ([], "empty goal"),
+        (["(on block block)"], "cannot be on itself"),
+        (["(in block table)"], "expected a cabinet"),
         ("(on block tray)", "expected a list"),
     ],
 )
@@ -329,3 +331,24 @@ def test_daemon_answers_bad_requests_runs_a_goal_and_keeps_serving(tmp_path):
         assert ask("rearm")["ok"] and ask("status")["state"] == "idle"
     finally:
         daemon.stop()
+
+
+def test_daemon_stop_cancels_the_running_task_and_brings_the_robot_to_rest(tmp_path):
+    from rlgp_exec.executive.daemon import Daemon, DaemonOptions, request
+
+    ep = free_endpoint()
+    daemon = Daemon(load_scene(SCENE), RunOptions(backend="sim"), DaemonOptions(ep, "", tmp_path))
+    daemon.start()
+    try:
+        assert request(ep, "goal", {"literals": ["(on block tray)"]})["ok"]
+        end = time.monotonic() + 60
+        while time.monotonic() < end and daemon.executive.sm.state is not ExecState.EXECUTING:
+            time.sleep(0.01)
+        assert daemon.executive.sm.state is ExecState.EXECUTING
+    finally:
+        daemon.stop()
+    assert daemon.last is not None and daemon.last["status"] == "cancelled", daemon.last
+    assert "at rest" in daemon.last["detail"]
+    (path,) = tmp_path.glob("task0001-*.mcap")
+    rec = read_recording(path)
+    assert rec.complete and [d["to"] for _, d in rec.topic("/transitions")][-1] == "idle"
