@@ -43,6 +43,7 @@ GRIPPER_S = 1.5  # [s] for the gripper to close or open
 GRASP_FORCE_N = 10.0
 EMPTY_GRASP_MARGIN = 0.05  # [rad] fingers this close to fully closed: nothing in the hand
 STOP_TIMEOUT_S = 3.0
+LIMIT_SNAP = 1e-3  # [rad | m] setpoints this far outside a position limit are clipped onto it
 WORLD_CHECK_CYCLES = 10  # cycles between world checks (a moved object) during a phase
 
 
@@ -124,6 +125,8 @@ class Actor:
         self.period = period
         self.names = list(hal.setpoint_names)
         self.idx = np.array([self.model.index(n) for n in self.names])
+        self._lo = np.where(self.model.limits.continuous[self.idx], -np.inf, self.model.limits.lower[self.idx])
+        self._hi = np.where(self.model.limits.continuous[self.idx], np.inf, self.model.limits.upper[self.idx])
         manip = self.model.manipulator()
         self.monitored = np.array(sorted({*self.model.group("base"), *self.model.group(manip.group)}))
         self.closed = manip.closed
@@ -159,7 +162,11 @@ class Actor:
         c, s = math.cos(yaw), math.sin(yaw)
         twist = (c * vx + s * vy, -s * vx + c * vy, dq[2] + BASE_GAIN * eyaw)
         res_b = self.hal.write_base_velocity(*twist)
-        res_q = self.hal.write_setpoint(q[self.idx], dq[self.idx])
+        # a start measured a hair outside a limit (physics, encoder noise) is held inside it
+        q_set = q[self.idx]
+        q_in = np.clip(q_set, self._lo, self._hi)
+        q_cmd = np.where(np.abs(q_in - q_set) <= LIMIT_SNAP, q_in, q_set)  # beyond that, the HAL refuses it
+        res_q = self.hal.write_setpoint(q_cmd, dq[self.idx])
         if self._on_first_motion is not None and res_q and np.any(np.abs(dq) > 1e-6):
             self._on_first_motion()
             self._on_first_motion = None
@@ -168,7 +175,7 @@ class Actor:
                 "/command",
                 {
                     "names": self.names,
-                    "q": q[self.idx],
+                    "q": q_cmd,
                     "dq": dq[self.idx],
                     "base_twist": twist,
                     "q_model": q,

@@ -228,7 +228,7 @@ class Executive:
         self.signals.cancel.clear()
         first_motion: list[float] = []
         self.actor._on_first_motion = lambda: first_motion.append(time.perf_counter() - t_start)
-        stats = {"plans": 0, "replans": 0, "planning_time_s": 0.0, "execution_time_s": 0.0}
+        stats: dict[str, float] = {"plans": 0, "replans": 0, "planning_time_s": 0.0, "execution_time_s": 0.0}
         d0 = self.actor.base_distance_m
         goal_text: tuple[str, ...] = (
             tuple(goal_literals) if goal_literals is not None else tuple(str(x) for x in self.scene.goal.literals)
@@ -241,8 +241,8 @@ class Executive:
                 detail,
                 goal_text,
                 actions,
-                stats["plans"],
-                stats["replans"],  # type: ignore[arg-type]
+                int(stats["plans"]),
+                int(stats["replans"]),
                 stats["planning_time_s"],
                 stats["execution_time_s"],
                 first_motion[0] if first_motion else None,

@@ -204,7 +204,8 @@ def update_scene(
             n = model.joint_names[i]
             if n in state.names:
                 joints[n] = float(state.position(n))
-        s = replace(s, robot=replace(scene.robot, base=tuple(float(b) for b in state.base), joints=joints))
+        x, y, yaw = (float(b) for b in state.base)
+        s = replace(s, robot=replace(scene.robot, base=(x, y, yaw), joints=joints))
 
     def fail(where: str, msg: str) -> SceneError:
         return SceneError(f"{scene.name} (sensed)", where, msg)
