@@ -43,6 +43,7 @@ GRIPPER_S = 1.5  # [s] for the gripper to close or open
 GRASP_FORCE_N = 10.0
 EMPTY_GRASP_MARGIN = 0.05  # [rad] fingers this close to fully closed: nothing in the hand
 STOP_TIMEOUT_S = 3.0
+SPIN_S = 0.0008  # [s] the last part of each control period is waited for by spinning, not sleeping
 LIMIT_SNAP = 1e-3  # [rad | m] setpoints this far outside a position limit are clipped onto it
 WORLD_CHECK_CYCLES = 10  # cycles between world checks (a moved object) during a phase
 
@@ -96,9 +97,11 @@ class ControlClock:
         else:
             self._next += self.period
             delay = self._next - time.perf_counter()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -5 * self.period:  # hopelessly late (a GC pause, a debugger): re-anchor
+            if delay > SPIN_S:
+                time.sleep(delay - SPIN_S)  # the OS wakes us late by up to ~1 ms: spin the rest
+            while time.perf_counter() < self._next:
+                pass
+            if delay < -5 * self.period:  # hopelessly late (a GC pause, a debugger): re-anchor
                 self._next = time.perf_counter()
         now = time.perf_counter()
         if self._last is not None:
@@ -135,6 +138,7 @@ class Actor:
         self.base_distance_m = 0.0
         self._last_xy: tuple[float, float] | None = None
         self._on_first_motion = on_first_motion
+        self.on_phase: Callable[[int, int], None] | None = None  # progress: (phase index, phases)
 
     # ------------------------------------------------------------------ state
     def measured_q(self, st: RobotState) -> FloatArray:
@@ -268,6 +272,8 @@ class Actor:
         """Follow ``phases`` (timed as ``trajectories``); returns how far it got and why it stopped.
         ``world_check`` runs before each phase and every ``WORLD_CHECK_CYCLES`` during it."""
         for k, (ph, traj) in enumerate(zip(phases, trajectories, strict=True)):
+            if self.on_phase is not None:
+                self.on_phase(k, len(phases))
             st = self._state()
             if isinstance(st, Violation):
                 return ActOutcome(ActStatus.VIOLATION, k, st, held)

@@ -73,6 +73,7 @@ class Daemon:
         self.current: _Task | None = None
         self.last: dict[str, Any] | None = None
         self.served = 0
+        self.progress: dict[str, int] | None = None
         self._next_id = 1
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -94,6 +95,7 @@ class Daemon:
             self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed
         )
         self.executive.sm.listeners.append(self._on_transition)
+        self.executive.actor.on_phase = self._on_phase
         self._session = zenoh.open(session_config(listen=self.opts.listen))
         self._pub = self._session.declare_publisher(f"{self.base}/status")
         handlers = {
@@ -209,6 +211,7 @@ class Daemon:
             "task": None if self.current is None else {"id": self.current.id, "goal": list(self.current.literals)},
             "queued": self.queue.qsize(),
             "served": self.served,
+            "progress": self.progress if self.current is not None else None,
             "last": self.last,
         }
 
@@ -219,6 +222,10 @@ class Daemon:
             log.debug("status publish: %s", e)
 
     def _on_transition(self, tr: Transition) -> None:
+        self._publish()
+
+    def _on_phase(self, k: int, n: int) -> None:
+        self.progress = {"phase": k + 1, "phases": n}
         self._publish()
 
     # ------------------------------------------------------------------ the worker
