@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.executive.world import MOCAP_KEY, encode_poses
+from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY, encode_poses
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
@@ -166,6 +166,7 @@ class ZenohRobotServer:
         if "mocap" in self._pubs and self._ticks % MOCAP_EVERY == 0:
             with self.lock:
                 poses = {n: self.sim.object_pose(n) for n in self.sim.objects}
+                poses.update({f"{c}{DRAWER_SUFFIX}": self.sim.drawer_pose(c) for c in self.sim.cabinets})
             self._pubs["mocap"].put(encode_poses(st.stamp, poses))
 
     # ------------------------------------------------------------------ commands

@@ -31,11 +31,13 @@ from rlgp_exec.scene.geometry import support_surfaces
 from rlgp_exec.scene.validate import find_support
 
 __all__ = [
+    "DRAWER_SUFFIX",
     "MOCAP_KEY",
     "ObjectSource",
     "ScenePoses",
     "SimMocap",
     "ZenohMocap",
+    "drawer_openings",
     "encode_poses",
     "update_scene",
 ]
@@ -43,6 +45,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MOCAP_KEY = "rlgp/mocap/objects"  # tf2_msgs/msg/TFMessage, world frame "map"
+DRAWER_SUFFIX = ".drawer"  # mocap frame of a cabinet's drawer: "<cabinet>.drawer"
 SNAP_Z = 0.015  # [m] a sensed object this close above/below a support surface rests on it
 
 
@@ -79,7 +82,9 @@ class SimMocap(ObjectSource):
         sim = self._hal.sim
         if sim is None:
             return {}
-        return {name: sim.object_pose(name) for name in sim.objects}
+        poses = {name: sim.object_pose(name) for name in sim.objects}
+        poses.update({f"{c}{DRAWER_SUFFIX}": sim.drawer_pose(c) for c in sim.cabinets})
+        return poses
 
 
 def encode_poses(stamp: float, poses: dict[str, FloatArray]) -> bytes:
@@ -159,6 +164,21 @@ class ZenohMocap(ObjectSource):
             self._sub.undeclare()
         except Exception as e:  # the session may be gone already
             log.debug("mocap undeclare: %s", e)
+
+
+def drawer_openings(scene: Scene, poses: dict[str, FloatArray]) -> dict[str, float]:
+    """How far [m] each cabinet's drawer is out, from its sensed ``<cabinet>.drawer`` frame (cabinets
+    without one are absent)."""
+    from rlgp_exec.scene import cabinet_geometry
+
+    out = {}
+    for fx in scene.fixtures:
+        T = poses.get(f"{fx.name}{DRAWER_SUFFIX}")
+        if fx.kind != "drawer_cabinet" or T is None:
+            continue
+        g = cabinet_geometry(fx)
+        out[fx.name] = float(np.dot(T[:3, 3] - g.T_world_drawer_closed[:3, 3], np.asarray(g.axis_world, float)))
+    return out
 
 
 def _snap(scene: Scene, name: str, x: float, y: float, z: float, height: float) -> float:

@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 _FINGER_LEVER = 0.1  # [m] grasp force -> hand motor torque
+_DRAWER_FRICTION_N = 5.0  # [N] the drawer's slide friction
 _JOINT_FORCE = 300.0  # [N|Nm] position-control force of the arm/head joints
 
 
@@ -52,6 +53,7 @@ class SimRobot:
         self.dt = float(dt)
         self.base_timeout = float(base_timeout)
         self.objects: dict[str, int] = {}
+        self.cabinets: dict[str, tuple[int, int]] = {}  # name -> (body, drawer joint = drawer link)
         self.world = None
         if scene is not None:
             from sim.world import build_world
@@ -60,6 +62,13 @@ class SimRobot:
             self.client = self.world.client
             self.robot = self.world.robot
             self.objects = dict(self.world.objects)
+            for name, cab in self.world.cabinets.items():
+                self.cabinets[name] = (cab.body, cab.drawer_joint)
+                # a free drawer with some friction, inside its travel: the hand on the knob moves it
+                p.changeDynamics(cab.body, cab.drawer_joint, jointLowerLimit=0.0, jointUpperLimit=cab.travel,
+                                 physicsClientId=self.client)
+                p.setJointMotorControl2(cab.body, cab.drawer_joint, p.VELOCITY_CONTROL, targetVelocity=0.0,
+                                        force=_DRAWER_FRICTION_N, physicsClientId=self.client)
         else:
             self.client = p.connect(p.DIRECT)
             p.setGravity(0, 0, -9.81, physicsClientId=self.client)
@@ -95,6 +104,7 @@ class SimRobot:
         self._grasping = False
         self._grasp_force = 0.0
         self.held: str | None = None
+        self.knob: str | None = None  # the cabinet whose knob the hand holds
         self._constraint: int | None = None
         self._base_cmd = np.zeros(3)
         self._base_cmd_t = -math.inf
@@ -125,7 +135,7 @@ class SimRobot:
         if self.estopped:
             return False
         if cmd.action is GripperAction.GRASP:
-            if self.held is None:
+            if self.held is None and self.knob is None:
                 self._grasping = True
                 self._grasp_force = cmd.force
                 self._q_target[self._grip_i] = self.manip.closed
@@ -201,22 +211,31 @@ class SimRobot:
             if any(c[3] in self._fingers_set for c in pts):
                 self._attach(body_name, body)
                 return
+        for cab_name, (body, link) in self.cabinets.items():
+            pts = p.getContactPoints(bodyA=self.robot.id, bodyB=body, linkIndexB=link, physicsClientId=self.client)
+            if any(c[3] in self._fingers_set for c in pts):
+                self._attach(cab_name, body, link)
+                return
         q = p.getJointState(self.robot.id, self._model_j[self._grip_i], physicsClientId=self.client)[0]
         if q <= self.manip.closed + 0.02:
             self._grasping = False  # closed on nothing
             log.info("sim: grasp closed on nothing")
 
-    def _attach(self, name: str, body: int) -> None:
+    def _attach(self, name: str, body: int, link: int = -1) -> None:
+        """Hold ``body`` (its ``link``: a cabinet's drawer for a knob grasp) fixed to the palm."""
         cid, rid = self.client, self.robot.id
         T_palm = self.robot.link_pose(self.manip.palm_frame)
-        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        if link < 0:
+            pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        else:
+            pos, orn = p.getLinkState(body, link, physicsClientId=cid)[4:6]
         inv_pos, inv_orn = p.invertTransform(T_palm[:3, 3].tolist(), _quat(T_palm))
         rel_pos, rel_orn = p.multiplyTransforms(inv_pos, inv_orn, pos, orn)
         self._constraint = p.createConstraint(
             rid,
             self._palm,
             body,
-            -1,
+            link,
             p.JOINT_FIXED,
             [0, 0, 0],
             rel_pos,
@@ -225,25 +244,43 @@ class SimRobot:
             physicsClientId=cid,
         )
         p.changeConstraint(self._constraint, maxForce=500.0, physicsClientId=cid)
-        for link in range(-1, p.getNumJoints(rid, physicsClientId=cid)):
-            p.setCollisionFilterPair(rid, body, link, -1, 0, physicsClientId=cid)
-        self.robot.ignore_body(body)
+        self._set_collisions(body, link, False)
         q = p.getJointState(rid, self._model_j[self._grip_i], physicsClientId=cid)[0]
         self._q_target[self._grip_i] = q  # hold the fingers where they touched
         self._grasping = False
-        self.held = name
-        log.info("sim: grasped %s at %s = %.3f", name, self.limits.gripper_joint, q)
+        if link < 0:
+            self.held = name
+        else:
+            self.knob = name
+        log.info("sim: grasped %s%s at %s = %.3f", name, " (knob)" if link >= 0 else "", self.limits.gripper_joint, q)
+
+    def _set_collisions(self, body: int, link: int, enabled: bool) -> None:
+        cid, rid = self.client, self.robot.id
+        for rl in range(-1, p.getNumJoints(rid, physicsClientId=cid)):
+            p.setCollisionFilterPair(rid, body, rl, link, int(enabled), physicsClientId=cid)
+        if link < 0:
+            self.robot.ignore_body(body, not enabled)
 
     def _release(self) -> None:
-        if self._constraint is None or self.held is None:
+        if self._constraint is None:
             return
-        cid, rid, body = self.client, self.robot.id, self.objects[self.held]
-        p.removeConstraint(self._constraint, physicsClientId=cid)
-        for link in range(-1, p.getNumJoints(rid, physicsClientId=cid)):
-            p.setCollisionFilterPair(rid, body, link, -1, 1, physicsClientId=cid)
-        self.robot.ignore_body(body, False)
-        log.info("sim: released %s", self.held)
-        self._constraint, self.held = None, None
+        p.removeConstraint(self._constraint, physicsClientId=self.client)
+        if self.held is not None:
+            self._set_collisions(self.objects[self.held], -1, True)
+            log.info("sim: released %s", self.held)
+        elif self.knob is not None:
+            body, link = self.cabinets[self.knob]
+            self._set_collisions(body, link, True)
+            log.info("sim: let go of the knob of %s", self.knob)
+        self._constraint, self.held, self.knob = None, None, None
+
+    def drawer_pose(self, cabinet: str) -> FloatArray:
+        """T_world_drawer (4, 4) of a cabinet's drawer link."""
+        from rlgp_exec.robot.pybullet_body import pose_to_matrix
+
+        body, link = self.cabinets[cabinet]
+        pos, orn = p.getLinkState(body, link, physicsClientId=self.client)[4:6]
+        return pose_to_matrix(pos, orn)
 
     # ------------------------------------------------------------------ state
     def measured_q(self) -> FloatArray:
