@@ -37,11 +37,12 @@ def _p(xs: list[float], q: float) -> float | None:
     return float(np.percentile(xs, q)) if xs else None
 
 
-def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list[str]]:
+def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list[str], list[str]]:
     scene = load_scene(scene_path)
     robot = RobotProcess(scene_path)
     proc, ep = robot.proc, robot.endpoint
     reactions: list[float] = []
+    kinds: list[str] = []
     failures: list[str] = []
     hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
     try:
@@ -84,6 +85,7 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
                 not stall and out.status is ActStatus.ESTOPPED
             ):
                 reactions.append((t_react - injected[0]) * 1e3)
+                kinds.append("stall" if stall else "estop")
             else:
                 failures.append(f"fault {k} ({'stall' if stall else 'estop'}): {got}")
             # recover: re-arm, wait for fresh state
@@ -97,14 +99,15 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
     finally:
         hal.shutdown()
         robot.stop()
-    return reactions, failures
+    return reactions, kinds, failures
 
 
 def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50, seed: int = 0) -> dict:
     with RobotProcess(task_scene) as robot:
         result, ex = run_task(load_scene(task_scene), RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed))
     errs = ex.actor.clock.period_err_ms
-    reactions, failures = _fault_reactions(fault_scene, n_faults)
+    reactions, kinds, failures = _fault_reactions(fault_scene, n_faults)
+    by_kind = {k: [r for r, kk in zip(reactions, kinds, strict=True) if kk == k] for k in ("estop", "stall")}
     return {
         "task": "executive",
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
@@ -120,6 +123,8 @@ def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50,
             "execution_time_s": result.execution_time_s,
             "fault_reaction_ms_p50": _p(reactions, 50),
             "fault_reaction_ms_p99": _p(reactions, 99),
+            "estop_reaction_ms_p99": _p(by_kind["estop"], 99),
+            "stale_state_reaction_ms_p99": _p(by_kind["stall"], 99),
             "faults_injected": n_faults,
             "faults_handled": len(reactions),
         },
