@@ -352,12 +352,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not logging.getLogger().handlers:
         level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
         logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    if args.robot != "hsr":
-        print(
-            f"sim.robot_server: no driver maps for robot {args.robot!r} yet (robots/{args.robot}/zenoh_keys.toml, "
-            "can_nodes.toml); valid: hsr",
-            file=sys.stderr,
-        )
+    if args.transport == "can" and args.robot != "hsr":
+        print(f"sim.robot_server: no CANopen node map for robot {args.robot!r}; valid: hsr", file=sys.stderr)
         return 2
     if not args.rate > 0:
         print(f"sim.robot_server: --rate must be > 0, got {args.rate}", file=sys.stderr)
