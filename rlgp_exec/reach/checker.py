@@ -61,6 +61,26 @@ class WorldChecker:
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
+        self.openings = {name: 0.0 for name in self.world.cabinets}  # the drawers, as the graph was built
+        self.knob: int | None = None  # a cabinet body whose drawer the fingers may touch (the hand on its knob)
+        hand = set(self.model.manipulator().links)
+        self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
+
+    @property
+    def world_changed(self) -> bool:
+        """True while a drawer is not closed: the graph's remembered edge verdicts do not hold."""
+        return any(d > 0.0 for d in self.openings.values())
+
+    def set_drawers(self, openings: dict[str, float]) -> None:
+        """Put the drawers at ``openings`` [m] (cabinet name -> opening; unnamed ones stay)."""
+        for name, d in openings.items():
+            if self.openings.get(name) != d:
+                self.world.set_drawer_opening(name, d)
+                self.openings[name] = d
+
+    def touch_knob(self, cabinet: str | None) -> None:
+        """Let the fingers touch ``cabinet``'s drawer (None: nothing)."""
+        self.knob = None if cabinet is None else self.world.cabinets[cabinet].body
 
     def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
         """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame."""
@@ -96,6 +116,8 @@ class WorldChecker:
         for a in bodies:
             for b in self.bodies:
                 for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
+                    if b == self.knob and a == self.robot.id and c[3] in self._fingers and c[4] == 0:
+                        continue  # the fingers round the knob
                     d = min(d, float(c[8]))
         return d
 

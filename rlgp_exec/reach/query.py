@@ -112,8 +112,9 @@ class ReachabilityPlanner:
     # ------------------------------------------------------------------ checks
     def edge_valid(self, i: int, j: int) -> bool:
         """Check an edge once (lazily); remember the verdict in the graph. While carrying an object the
-        verdict holds for this query only: an edge too tight for the object may be fine for the hand."""
-        if self.in_collision.attached is not None:
+        verdict holds for this query only: an edge too tight for the object may be fine for the hand (and the
+        same while a drawer is out)."""
+        if self.in_collision.attached is not None or self.in_collision.world_changed:
             key = (min(i, j), max(i, j))
             if key not in self._carry_verdicts:
                 self.counters["edge_checks"] += 1
@@ -134,6 +135,13 @@ class ReachabilityPlanner:
         if self._carry_verdicts.get((min(u, v), max(u, v))) is False:
             return None  # hidden for this carrying query
         return d["weight"]
+
+    def drawers(self, openings: dict[str, float]) -> None:
+        """Plan the next queries with the drawers at ``openings`` [m]: while one is out, edge verdicts
+        hold for one query only (the graph remembers what holds with the drawers closed)."""
+        if openings != {k: self.in_collision.openings.get(k) for k in openings}:
+            self._carry_verdicts = {}
+        self.in_collision.set_drawers(openings)
 
     def carrying(self, size: FloatArray | None, T_tool_obj: FloatArray | None = None) -> None:
         """Plan the next queries with an object of box ``size`` (3,) held at T_tool_obj (None: hand only)."""
