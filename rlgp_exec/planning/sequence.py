@@ -65,15 +65,23 @@ class SequenceGeometry:
         return self.rg.estimate(x1, x2)
 
     def _above(self, q_k: FloatArray) -> list[FloatArray] | None:
-        """Configurations lifting the hand APPROACH straight up from q_k, the base where it is: the lift
+        """Lift APPROACH straight up from q_k, else half of it (a tall shelf may leave no more room)."""
+        for rise in (APPROACH, APPROACH / 2):
+            chain = self._rise(q_k, rise)
+            if chain is not None:
+                return chain
+        return None
+
+    def _rise(self, q_k: FloatArray, rise: float) -> list[FloatArray] | None:
+        """Configurations lifting the hand ``rise`` [m] straight up from q_k, the base where it is: the lift
         raised when it has the travel (one vertical motion), else the arm alone (differential IK, the hand
         keeping its orientation), as waypoints 3 cm apart."""
         for lift in ("arm_lift_joint", "torso_lift_joint"):
             if lift in self.model.joint_names:
                 i = self.model.index(lift)
-                if q_k[i] + APPROACH <= self.model.limits.upper[i]:
+                if q_k[i] + rise <= self.model.limits.upper[i]:
                     q = q_k.copy()
-                    q[i] += APPROACH
+                    q[i] += rise
                     return None if self.checker(q) else [q]
         # differential IK on the arm: the tool rises along world z without turning (a held object keeps
         # its attitude), 1 cm per step, re-linearised at every step
@@ -81,7 +89,7 @@ class SequenceGeometry:
         lo, hi = self.model.limits.lower[arm], self.model.limits.upper[arm]
         target = np.r_[0.0, 0.0, 0.01, 0.0, 0.0, 0.0]
         q, chain = q_k.copy(), []
-        for step in range(round(APPROACH / 0.01)):
+        for step in range(round(rise / 0.01)):
             J = self.model.jacobian(q, self.tool)[:, arm]
             dq = np.linalg.lstsq(J, target, rcond=1e-6)[0]
             q = q.copy()
@@ -90,7 +98,7 @@ class SequenceGeometry:
                 return None
             if step % 3 == 2:
                 chain.append(q)
-        return None if self.checker(chain[-1]) else chain
+        return None if not chain or self.checker(chain[-1]) else chain
 
     def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
         """The transport posture: raise the lift to the top, drive, lower it (three straight motions,
@@ -169,6 +177,7 @@ class SequenceGeometry:
             ik=self.ik,
             hand=self.hand,
             self_spheres=self.self_spheres,
+            lift_room=APPROACH,
         )
         empty = np.zeros((0, self.model.nq))
 

@@ -54,6 +54,8 @@ W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: o
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
+ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
+BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 DROP_GAP = 0.02  # [m] between objects dropped into one drawer (footprint circles)
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
@@ -122,6 +124,7 @@ def solve_keyframes(
     ik: ReachIK | None = None,
     hand: Sequence[tuple[FloatArray, float]] = (),
     self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
+    lift_room: float = 0.0,
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q)`` (the full PyBullet check,
     self-collisions included, which the NLP's shapes do not model; it gets the drawers' openings [m]
@@ -129,6 +132,8 @@ def solve_keyframes(
     vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
     ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
     ``self_spheres``: spheres on the arm links (``nlp.hand.arm_link_spheres``), kept off the base.
+    ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
+    its travel above it (the vertical leave is then one lift motion).
     After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
     t0 = time.perf_counter()
     objs = {o.name: o for o in scene.objects}
@@ -150,6 +155,7 @@ def solve_keyframes(
     fixture_rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
     base_bx = base_obstacles(model) if self_spheres else []
+    lift_name = model.joint_names[int(ik.idx[3])] if len(ik.idx) > 3 else ""
     poses: dict[str, FloatArray] = {name: o.T.copy() for name, o in objs.items()}
     openings = {c: 0.0 for c in drawers}
     opening_at: list[dict[str, float]] = []  # the drawers' openings at each keyframe
@@ -178,7 +184,7 @@ def solve_keyframes(
         drawer_bx = [b for c, v in drawers.items() if not (at_knob and c == a.obj) for b in v.boxes(openings[c])]
         n0 = len(rows.g)
         still_bx = [replace(b, T=poses[b.name]) for b in still]
-        box_clear(rs, fixture_bx + drawer_bx + still_bx, rows)
+        box_clear(rs, fixture_bx + drawer_bx + still_bx, rows, margin=ARM_MARGIN)
         self_clear(model, rs.q, list(self_spheres), base_bx, rows)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
@@ -187,7 +193,7 @@ def solve_keyframes(
         n0 = len(rows.g)
         open_rects = [(v.T_world_drawer(openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
                       for c, v in drawers.items() if openings[c] > 0.0]
-        footprint_clear(rs, fixture_rects + open_rects, rows, margin=0.01)
+        footprint_clear(rs, fixture_rects + open_rects, rows, margin=BASE_MARGIN)
         labels += [f"{a} base footprint"] * (len(rows.g) - n0)
         opening_at.append(dict(openings))
         n0 = len(rows.g)
@@ -233,6 +239,8 @@ def solve_keyframes(
                 targets.append(T_rect[:3, 3] + np.array([0.0, 0.0, rim - T_rect[2, 3] + DROP_LOW + o.size[2]]))
             moved.add(a.obj)
             held, grasp = None, None
+        if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
+            rows.add(Z[3, k], -ca.inf, float(ik.hi[3]) - lift_room)
         labels += [f"{a} {KIND[a.name]}"] * (len(rows.g) - n0)
     z0 = ca.DM(ik.z_of(q_start))
     cost = 0
@@ -273,6 +281,7 @@ def solve_keyframes(
                 z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
             init.append(z)
         res = solver(x0=np.concatenate(init), lbx=lbx, ubx=ubx, lbg=rows.lower, ubg=rows.upper)
+        keep = {}  # used once: a restart that fails starts afresh
         g = np.asarray(res["g"]).reshape(-1)
         viol = float(np.max(np.r_[np.asarray(rows.lower) - g, g - np.asarray(rows.upper), 0.0]))
         over = np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))
@@ -283,6 +292,8 @@ def solve_keyframes(
             if bad:  # feasible for the NLP, not for the robot: restart the rejected keyframes
                 viol, worst = 1.0, f"{actions[bad[0]]} keyframe collides in PyBullet (self or world)"
                 keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
+        status = solver.stats()["return_status"]
+        log.debug("keyframes attempt %d: violation %.2e (%s) %s", _attempt, viol, worst, status)
         cand = (viol, float(res["f"]), np.asarray(res["x"]).reshape(-1), worst)
         if best is None or (cand[0] < best[0] - 1e-9) or (cand[0] <= FEAS_TOL and cand[1] < best[1]):
             best = cand
