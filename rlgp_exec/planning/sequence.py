@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from rlgp_exec.planning.drawers import drawer_views
-from rlgp_exec.planning.nlp.hand import arm_link_spheres, finger_spheres
+from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger_spheres
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.validate import Phase, validate_plan
@@ -49,6 +49,7 @@ class SequenceGeometry:
         self.drawers = drawer_views(scene)
         self.hand = finger_spheres(self.checker.robot, self.model, self.q0)
         self.self_spheres = arm_link_spheres(self.model)
+        self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
 
@@ -177,6 +178,7 @@ class SequenceGeometry:
             ik=self.ik,
             hand=self.hand,
             self_spheres=self.self_spheres,
+            body=self.body,
             lift_room=APPROACH,
         )
         empty = np.zeros((0, self.model.nq))

@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 ENHANCE_SIGMAS = (0.25, 0.15, 0.08, 0.04)  # [m] the shrinking Gaussian's standard deviations
 ENHANCE_TRIES = 6  # samples per sigma
 MAX_REPLANS = 60
+MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback (each costs up to ~50 IK solves)
 
 
 class QueryStatus(enum.Enum):
@@ -293,11 +294,13 @@ class ReachabilityPlanner:
                 (time.perf_counter() - t0) * 1e3,
                 f"no collision-free configuration reaches {x2.round(3)}",
             )
+        bridges = 0
         for _ in range(MAX_REPLANS):
             try:
                 nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
             except nx.NetworkXNoPath:
-                if not self._bridge(a, b):
+                bridges += 1
+                if bridges > MAX_BRIDGES or not self._bridge(a, b):
                     break
                 continue
             bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]

@@ -7,8 +7,9 @@ nominal configuration (the hand open) and puts three spheres along each box's lo
 frame; :func:`points_clear` keeps them clear of boxes. Links whose shapes are meshes get none (their
 hull is not a box), so for them the NLP stays as it was and the PyBullet check decides.
 
-Self-collision proxy (:func:`self_clear`): spheres on the arm links' cylinders and boxes kept clear of
-the base's cylinder (the HSR's arm, low and level, otherwise rests on its base); PR2's meshes give none.
+Self-collision proxy (:func:`self_clear`): spheres on the arm kept clear of the link the arm is mounted
+on (the HSR's base cylinder: a low, level arm otherwise rests on it; the PR2's torso: the upper arm
+otherwise swings into it).
 """
 
 from __future__ import annotations
@@ -18,12 +19,12 @@ import numpy as np
 import pybullet as p
 
 from rlgp_exec.planning.nlp.factors import Rows
-from rlgp_exec.reach.ik import box_sdf
+from rlgp_exec.reach.ik import arm_spheres, box_sdf
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["arm_link_spheres", "base_obstacles", "finger_spheres", "points_clear", "self_clear"]
+__all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear", "self_clear"]
 
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
@@ -90,41 +91,57 @@ def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
 
 
 def arm_link_spheres(model, manipulator: str | None = None) -> list[tuple[str, FloatArray, float]]:
-    """(link frame, centre in that frame (3,), radius [m]) spheres on the arm links' collision cylinders
-    (three per cylinder, on its axis), the lift's link excluded (it rides the body)."""
+    """(frame, centre in that frame (3,), radius [m]) spheres on the arm for the self-clearance rows: on
+    the arm links' collision cylinders (three per cylinder, on its axis; the first joint's link, which
+    rides the body, excluded), else (mesh arms: PR2) the arm spheres from the elbow on."""
     m = model.manipulator(manipulator)
     cyl = _urdf_cylinders(model)
     out: list[tuple[str, FloatArray, float]] = []
-    for j in [model.joint_names[i] for i in model.group(m.group)][1:]:
+    joints = [model.joint_names[i] for i in model.group(m.group)]
+    for j in joints[1:]:
         link = j.removesuffix("_joint") + "_link"
         for T, r, length in cyl.get(link, []):
             for s in (-0.5, 0.0, 0.5):
                 out.append((link, (T @ np.r_[0.0, 0.0, s * max(length - 2 * r, 0.0), 1.0])[:3], r))
+    if not out:
+        out = [(f, np.zeros(3), r) for f, r in arm_spheres(model, manipulator)[2:]]
     return out
 
 
-def base_obstacles(model) -> list[Box]:
-    """The base link's collision cylinders as boxes in the base link's frame (the body column is left
-    out: the arm rides along it)."""
-    return [
-        Box("base", (2 * r, 2 * r, length), T, (0.0, 0.0, 0.0, 1.0))
-        for T, r, length in _urdf_cylinders(model).get("base_link", [])
-    ]
+def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) -> list[tuple[str, Box]]:
+    """(frame, box in that frame) of the link the arm is mounted on: its collision cylinders from the URDF
+    (the HSR's base; a box beside them is the column the arm rides along, left out), else its PyBullet
+    bounding box at ``q`` (a mesh: the PR2's torso)."""
+    m = model.manipulator(manipulator)
+    first = robot.joint_index[model.joint_names[model.group(m.group)[0]]]
+    parent = robot.link_name.get(p.getJointInfo(robot.id, first, physicsClientId=robot.client)[16], "base_link")
+    cyl = _urdf_cylinders(model).get(parent, [])
+    if cyl:
+        return [(parent, Box("body", (2 * r, 2 * r, length), T, (0.0, 0.0, 0.0, 1.0))) for T, r, length in cyl]
+    robot.set_q(q)
+    lo, hi = (np.asarray(v, float) for v in p.getAABB(robot.id, robot.link_index[parent], physicsClientId=robot.client))
+    T_link = model.fk(q, parent)
+    corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
+                        for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    T = np.eye(4)
+    T[:3, 3] = (corners.min(axis=0) + corners.max(axis=0)) / 2
+    size = corners.max(axis=0) - corners.min(axis=0)
+    return [(parent, Box("body", tuple(float(v) for v in size), T, (0.0, 0.0, 0.0, 1.0)))]
 
 
-def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], base: list[Box], rows: Rows,
-               margin: float = 0.01) -> None:
-    """The arm's link spheres clear of the base's shapes (both in the base link's frame)."""
-    if not spheres or not base:
+def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],
+               rows: Rows, margin: float = 0.01) -> None:
+    """The arm's spheres clear of the body's boxes (each box in its link's frame)."""
+    if not spheres or not body:
         return
-    frames = tuple(dict.fromkeys(["base_link", *(f for f, _, _ in spheres)]))
+    frames = tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
     Ts = model.casadi_fk(frames)(q_sym)
     Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
-    T_b = Ts["base_link"]
     for f, c, r in spheres:
         pw = Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3]
-        pb = T_b[:3, :3].T @ (pw - T_b[:3, 3])
-        for b in base:
+        for bf, b in body:
+            T_b = Ts[bf]
+            pb = T_b[:3, :3].T @ (pw - T_b[:3, 3])
             Tinv = np.linalg.inv(b.T)
             pl = ca.DM(Tinv[:3, :3]) @ pb + ca.DM(Tinv[:3, 3])
             rows.add(box_sdf(pl, np.asarray(b.size) / 2), r + margin, ca.inf)

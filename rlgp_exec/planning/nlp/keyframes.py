@@ -39,12 +39,12 @@ from rlgp_exec.planning.nlp.factors import (
     grasp_top_round,
     inside_rectangle,
 )
-from rlgp_exec.planning.nlp.hand import base_obstacles, points_clear, self_clear
+from rlgp_exec.planning.nlp.hand import points_clear, self_clear
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import PANEL, fixture_boxes, object_box
+from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
 
 __all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
 
@@ -124,6 +124,7 @@ def solve_keyframes(
     ik: ReachIK | None = None,
     hand: Sequence[tuple[FloatArray, float]] = (),
     self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
+    body: Sequence[tuple[str, Box]] = (),
     lift_room: float = 0.0,
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q)`` (the full PyBullet check,
@@ -131,7 +132,8 @@ def solve_keyframes(
     at that keyframe and the action too) rejects a solution. ``max_tilt`` [rad]: how far from
     vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
     ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
-    ``self_spheres``: spheres on the arm links (``nlp.hand.arm_link_spheres``), kept off the base.
+    ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
+    (``nlp.hand.body_obstacles``).
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
     After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
@@ -154,7 +156,6 @@ def solve_keyframes(
     rows = Rows.empty()
     fixture_rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
-    base_bx = base_obstacles(model) if self_spheres else []
     lift_name = model.joint_names[int(ik.idx[3])] if len(ik.idx) > 3 else ""
     poses: dict[str, FloatArray] = {name: o.T.copy() for name, o in objs.items()}
     openings = {c: 0.0 for c in drawers}
@@ -185,7 +186,7 @@ def solve_keyframes(
         n0 = len(rows.g)
         still_bx = [replace(b, T=poses[b.name]) for b in still]
         box_clear(rs, fixture_bx + drawer_bx + still_bx, rows, margin=ARM_MARGIN)
-        self_clear(model, rs.q, list(self_spheres), base_bx, rows)
+        self_clear(model, rs.q, list(self_spheres), list(body), rows)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
             points_clear(rs.T_tool, list(hand), fixture_bx + finger_bx + still_bx, rows)
@@ -281,7 +282,7 @@ def solve_keyframes(
                 z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
             init.append(z)
         res = solver(x0=np.concatenate(init), lbx=lbx, ubx=ubx, lbg=rows.lower, ubg=rows.upper)
-        keep = {}  # used once: a restart that fails starts afresh
+        restarted, keep = bool(keep), {}  # a partial restart is tried once, then a fresh start
         g = np.asarray(res["g"]).reshape(-1)
         viol = float(np.max(np.r_[np.asarray(rows.lower) - g, g - np.asarray(rows.upper), 0.0]))
         over = np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))
@@ -291,7 +292,8 @@ def solve_keyframes(
             bad = [k for k in range(K) if in_collision(ik.q_of(zk[k]), opening_at[k], actions[k])]
             if bad:  # feasible for the NLP, not for the robot: restart the rejected keyframes
                 viol, worst = 1.0, f"{actions[bad[0]]} keyframe collides in PyBullet (self or world)"
-                keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
+                if not restarted:
+                    keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
         status = solver.stats()["return_status"]
         log.debug("keyframes attempt %d: violation %.2e (%s) %s", _attempt, viol, worst, status)
         cand = (viol, float(res["f"]), np.asarray(res["x"]).reshape(-1), worst)
