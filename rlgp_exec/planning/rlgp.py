@@ -23,9 +23,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
+from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.grounding import ground_scene
 from rlgp_exec.planning.symbolic.heuristics import distance_cost, goal_lower_bound
 from rlgp_exec.planning.symbolic.model import GroundAction
@@ -40,6 +42,7 @@ log = logging.getLogger(__name__)
 PLANNERS = ("rlgp", "lgp")
 PER_ACTION = 1.0
 UNREACHABLE = 1e3
+TIME_BUDGET_S = 90.0  # [s] planning time after which no new candidate is tried
 GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
@@ -112,20 +115,35 @@ def plan_scene(
     max_expansions: int = 20_000,
     params: RGParams | None = None,
     seed: int = 0,
+    time_budget_s: float = TIME_BUDGET_S,
 ) -> Plan:
-    """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not."""
+    """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not.
+    No new candidate is started after ``time_budget_s`` [s] (the one under way finishes)."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
     t0 = time.perf_counter()
+    try:
+        problem = ground_scene(scene, manipulators=[goal_manipulator(scene)])
+    except SymbolicError as e:  # before any geometry: a bad goal is named at once
+        dt = time.perf_counter() - t0
+        return Plan(False, planner, (), np.zeros((0, 0)), (), dt, 0, 0, None, f"invalid goal: {e}")
     geo = SequenceGeometry(scene, params, seed)
     try:
-        problem = ground_scene(scene, manipulators=[geo.model.manipulator().name])
         cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
         search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
         reasons: list[str] = []
+
+        def failed(reason: str) -> Plan:
+            return Plan(
+                False, planner, (), np.zeros((0, geo.model.nq)), (), time.perf_counter() - t0, geo.n_nlp,
+                search.stats.expanded, None, reason,
+            )
+
         for k, cand in enumerate(search):
             if k >= max_candidates:
                 break
+            if time.perf_counter() - t0 > time_budget_s:
+                return failed(f"timed out: {time_budget_s:.0f} s budget spent on {k} candidates; last: {reasons[-1]}")
             actions = to_actions(cand.actions)
             if isinstance(actions, str):
                 reasons.append(actions)
@@ -135,18 +153,13 @@ def plan_scene(
             if result.success:
                 return result
             reasons.append(f"{cand}: {result.reason}")
-        why = "; ".join(reasons[-3:]) or "no symbolic plan"
-        return Plan(
-            False,
-            planner,
-            (),
-            np.zeros((0, geo.model.nq)),
-            (),
-            time.perf_counter() - t0,
-            geo.n_nlp,
-            search.stats.expanded,
-            None,
-            f"no valid plan after {len(reasons)} candidates: {why}",
-        )
+            if len(reasons) == 1:  # the first geometric failure: is the goal reachable at all?
+                infeasible = unreachable_goal(geo, problem)
+                if infeasible is not None:
+                    return failed(infeasible)
+        if search.stats.exhausted and not reasons:
+            return failed("infeasible: no symbolic plan reaches the goal")
+        why = "; ".join(reasons[-3:]) or "no symbolic plan within the search budget"
+        return failed(f"no valid plan after {len(reasons)} candidates: {why}")
     finally:
         geo.close()
