@@ -4,14 +4,23 @@ seed (so their ratio holds on a noisy machine), each plan validated by replay.
 Seed k randomises the scene's object poses within its ``random`` ranges (seed 0 is the file as
 written). A run that fails is recorded with its reason. The reachability graph is built once per
 scene (cached) and not counted in planning time; its build time is reported separately.
+
+``workers`` > 1 runs the (seed, planner) jobs in that many processes (``concurrent.futures``), each
+job loading the scene file itself; ``cluster`` (a Dask scheduler address, e.g. ``tcp://host:8786``)
+submits the same jobs to an existing Dask cluster instead (the workers must have this project
+installed and the scene file at the same path). ``plot`` writes the successful runs' base paths
+(``planning.plot``).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import platform
 import sys
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -21,33 +30,89 @@ from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
 from rlgp_exec.scene import load_scene, randomize
 
-__all__ = ["run_planner_bench"]
+__all__ = ["run_job", "run_planner_bench"]
+
+log = logging.getLogger(__name__)
 
 
 def _median(xs: list[float]) -> float | None:
     return float(np.median(xs)) if xs else None
 
 
-def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -> dict:
+def run_job(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
+    """One bench run (in any process): its record, and the base path [[x, y], ...] [m] if it succeeded."""
+    base = load_scene(scene_path)
+    scene = base if seed == 0 else randomize(base, seed)
+    t0 = time.perf_counter()
+    result = plan(scene, planner, seed=seed)
+    wall = time.perf_counter() - t0
+    xy: list[list[float]] = []
+    if result.success:
+        xy = np.vstack([ph.path[:, :2] for ph in result.phases]).tolist() if result.phases else []
+    return {**result.summary(), "seed": seed, "wall_s": wall}, xy
+
+
+def _report(record: dict, done: int, total: int) -> None:
+    ok = record["success"]
+    print(
+        f"  [{done:3d}/{total}] seed {record['seed']:3d} {record['planner']:5s} {'ok  ' if ok else 'FAIL'} "
+        f"{record['planning_time_s']:7.2f} s {'' if ok else record['reason'][:100]}",
+        file=sys.stderr,
+    )
+
+
+def _submit_all(jobs, submit: Callable[..., Future], scene_path: str) -> list[tuple[dict, list]]:
+    futures = {submit(run_job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
+    out: list[tuple[dict, list] | None] = [None] * len(jobs)
+    for done, fut in enumerate(as_completed(futures), 1):
+        out[futures[fut]] = fut.result()
+        _report(out[futures[fut]][0], done, len(jobs))  # type: ignore[index]
+    return out  # type: ignore[return-value]
+
+
+def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
+    try:
+        from dask.distributed import Client
+    except ModuleNotFoundError:
+        raise RlgpError(
+            f"bench --cluster {address}: needs Dask's distributed scheduler in this environment "
+            "(pip install 'dask[distributed]'); valid without it: --workers K"
+        ) from None
+    with Client(address) as client:
+        return _submit_all(jobs, client.submit, scene_path)
+
+
+def run_planner_bench(
+    scene_path: str | Path,
+    planners: list[str],
+    seeds: int,
+    workers: int | None = None,
+    cluster: str | None = None,
+    plot: str | Path | None = None,
+) -> dict:
     valid = planner_names()
     bad = [p for p in planners if p not in valid]
     if bad:
         raise RlgpError(f"unknown planner(s) {bad}; valid: {valid}")
+    if workers is not None and workers < 1:
+        raise RlgpError(f"--workers {workers}: must be at least 1")
+    scene_path = str(Path(scene_path).resolve())
     base = load_scene(scene_path)
-    _, stats = load_or_build(base)
-    runs = []
-    for seed in range(seeds):
-        scene = base if seed == 0 else randomize(base, seed)
-        for name in planners:
-            t0 = time.perf_counter()
-            result = plan(scene, name, seed=seed)
-            wall = time.perf_counter() - t0
-            runs.append({**result.summary(), "seed": seed, "wall_s": wall})
-            print(
-                f"  seed {seed:3d} {name:5s} {'ok  ' if result.success else 'FAIL'} {result.planning_time_s:7.2f} s "
-                f"{result.reason[:100] if not result.success else ''}",
-                file=sys.stderr,
-            )
+    _, stats = load_or_build(base)  # once, before any worker: they all read the cache
+    jobs = [(seed, name) for seed in range(seeds) for name in planners]  # interleaved, seed by seed
+    t0 = time.perf_counter()
+    if cluster:
+        results = _on_cluster(jobs, cluster, scene_path)
+    elif workers and workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            results = _submit_all(jobs, pool.submit, scene_path)
+    else:
+        results = []
+        for k, (seed, name) in enumerate(jobs):
+            results.append(run_job(scene_path, name, seed))
+            _report(results[-1][0], k + 1, len(jobs))
+    sweep_s = time.perf_counter() - t0
+    runs = [r for r, _ in results]
     summary = {}
     for name in planners:
         rs = [r for r in runs if r["planner"] == name]
@@ -61,12 +126,22 @@ def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -
             "steps_median": _median([r["n_steps"] for r in ok]),
             "n_nlp_median": _median([r["n_nlp"] for r in ok]),
         }
-    return {
+    out = {
         "task": base.name,
         "seeds": seeds,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "workers": 1 if cluster is None and not workers else (workers or 0),
+        "cluster": cluster,
+        "sweep_wall_s": sweep_s,
         "graph_build_s": stats.build_time_s,
         "graph_from_cache": stats.from_cache,
         "runs": runs,
         "summary": summary,
     }
+    if plot:
+        from rlgp_exec.planning.plot import plot_base_paths
+
+        paths = {name: [np.asarray(xy) for r, xy in results if r["planner"] == name and xy] for name in planners}
+        title = f"{base.name}: base paths ({seeds} seeds; objects of seed 0)"
+        out["plot"] = str(plot_base_paths(base, paths, plot, title))
+    return out

@@ -1,0 +1,38 @@
+"""The planner bench: interleaved runs in worker processes, the summary, the base-path plot, and the
+cluster option's error when Dask's scheduler is not installed."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.bench import run_planner_bench
+
+SORTING = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
+
+
+def test_bench_runs_seeds_in_worker_processes_and_plots_base_paths(tmp_path):
+    png = tmp_path / "paths.png"
+    out = run_planner_bench(SORTING, ["rlgp", "lgp"], seeds=1, workers=2, plot=png)
+    assert [(r["seed"], r["planner"]) for r in out["runs"]] == [(0, "rlgp"), (0, "lgp")]  # interleaved
+    for r in out["runs"]:
+        assert r["success"], r["reason"]
+        assert r["collision_free"] and r["goal_met"] and r["n_steps"] == 4
+    assert out["summary"]["rlgp"]["success_rate"] == 1.0 and out["workers"] == 2
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_rejects_unknown_planners_and_bad_worker_counts():
+    with pytest.raises(RlgpError, match="valid"):
+        run_planner_bench(SORTING, ["rlgp", "magic"], seeds=1)
+    with pytest.raises(RlgpError, match="at least 1"):
+        run_planner_bench(SORTING, ["rlgp"], seeds=1, workers=0)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is not None, reason="Dask's scheduler is installed")
+def test_cluster_mode_without_dask_says_what_it_needs():
+    with pytest.raises(RlgpError, match="dask"):
+        run_planner_bench(SORTING, ["rlgp"], seeds=1, cluster="tcp://127.0.0.1:8786")
