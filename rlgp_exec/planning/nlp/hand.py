@@ -14,6 +14,8 @@ otherwise swings into it).
 
 from __future__ import annotations
 
+import itertools
+
 import casadi as ca
 import numpy as np
 import pybullet as p
@@ -25,6 +27,9 @@ from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
 
 __all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear", "self_clear"]
+
+SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
+SHOULDER_SETBACK = 0.1  # [m] a mesh body's box ends this far behind the arm's first joint
 
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
@@ -103,8 +108,14 @@ def arm_link_spheres(model, manipulator: str | None = None) -> list[tuple[str, F
         for T, r, length in cyl.get(link, []):
             for s in (-0.5, 0.0, 0.5):
                 out.append((link, (T @ np.r_[0.0, 0.0, s * max(length - 2 * r, 0.0), 1.0])[:3], r))
-    if not out:
-        out = [(f, np.zeros(3), r) for f, r in arm_spheres(model, manipulator)[2:]]
+    if not out:  # mesh arms: spheres along each segment between consecutive joint frames, and the joints
+        q = model.home()
+        frames = list(dict.fromkeys(f for f, _ in arm_spheres(model, manipulator)))
+        for f, g in itertools.pairwise(frames):
+            rel = np.linalg.solve(model.fk(q, f), np.r_[model.fk(q, g)[:3, 3], 1.0])[:3]  # g's origin in f
+            if np.linalg.norm(rel) > 0.05:
+                out += [(f, s * rel, SEGMENT_RADIUS) for s in (0.35, 0.65)]
+        out += [(f, np.zeros(3), r) for f, r in arm_spheres(model, manipulator)[2:]]
     return out
 
 
@@ -123,9 +134,13 @@ def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) 
     T_link = model.fk(q, parent)
     corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
                         for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    lo_l, hi_l = corners.min(axis=0), corners.max(axis=0)
+    # the shoulders are mounted on the box's front: keep only what lies SHOULDER_SETBACK behind them
+    shoulder = np.linalg.solve(T_link, np.r_[model.fk(q, model.joint_names[model.group(m.group)[0]])[:3, 3], 1.0])
+    hi_l[0] = min(hi_l[0], float(shoulder[0]) - SHOULDER_SETBACK)
     T = np.eye(4)
-    T[:3, 3] = (corners.min(axis=0) + corners.max(axis=0)) / 2
-    size = corners.max(axis=0) - corners.min(axis=0)
+    T[:3, 3] = (lo_l + hi_l) / 2
+    size = hi_l - lo_l
     return [(parent, Box("body", tuple(float(v) for v in size), T, (0.0, 0.0, 0.0, 1.0)))]
 
 
