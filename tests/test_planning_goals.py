@@ -43,3 +43,32 @@ def test_an_object_out_of_reach_makes_the_goal_infeasible_after_a_bounded_search
     assert plan.reason.startswith("infeasible: block cannot be reached"), plan.reason
     # one candidate (two grasp tilts), then the pre-check: no search through the other candidates
     assert plan.n_nlp <= 2
+
+
+NICHE = ROOT / "data" / "niche_hsr.toml"
+
+
+def test_an_order_forced_by_reachability_is_found_and_the_other_order_fails():
+    """The block at the back of the niche is reachable only once the tall box in front of it is gone
+    (tests/data/niche_hsr.toml): block first fails at the geometric levels, rlgp plans box first."""
+    from rlgp_exec.planning.nlp.keyframes import Action
+    from rlgp_exec.planning.sequence import SequenceGeometry
+
+    scene = load_scene(NICHE)
+    geo = SequenceGeometry(scene)
+    try:
+        block_first = geo.plan_actions(
+            [
+                Action("pick", "block"),
+                Action("place", "block", "tray_block"),
+                Action("pick", "box"),
+                Action("place", "box", "tray_box"),
+            ]
+        )
+    finally:
+        geo.close()
+    assert not block_first.success
+    plan = plan_scene(scene, "rlgp")
+    assert plan.success, plan.reason
+    assert plan.validation is not None and plan.validation.collision_free and plan.validation.goal_met
+    assert plan.actions == ("(pick box)", "(place box tray_box)", "(pick block)", "(place block tray_block)")
