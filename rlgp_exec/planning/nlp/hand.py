@@ -29,7 +29,7 @@ from rlgp_exec.scene.geometry import Box
 __all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear", "self_clear"]
 
 SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
-SHOULDER_SETBACK = 0.1  # [m] a mesh body's box ends this far behind the arm's first joint
+SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
 
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
@@ -114,7 +114,7 @@ def arm_link_spheres(model, manipulator: str | None = None) -> list[tuple[str, F
         for f, g in itertools.pairwise(frames):
             rel = np.linalg.solve(model.fk(q, f), np.r_[model.fk(q, g)[:3, 3], 1.0])[:3]  # g's origin in f
             if np.linalg.norm(rel) > 0.05:
-                out += [(f, s * rel, SEGMENT_RADIUS) for s in (0.35, 0.65)]
+                out += [(f, s * rel, SEGMENT_RADIUS) for s in (0.0, 0.35, 0.65)]
         out += [(f, np.zeros(3), r) for f, r in arm_spheres(model, manipulator)[2:]]
     return out
 
