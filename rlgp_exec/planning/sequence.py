@@ -26,6 +26,7 @@ from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import object_box
 
 __all__ = ["APPROACH", "SequenceGeometry"]
 
@@ -160,9 +161,28 @@ class SequenceGeometry:
             if transport is not None:
                 return transport
             res = self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
+            if not res.ok:
+                return f"{res.status.value}: {res.reason}"
+            return self._shortcut(res.path)
         finally:
             self.rg.carrying(None)
-        return res.path if res.ok else f"{res.status.value}: {res.reason}"
+
+    def _shortcut(self, path: FloatArray, max_checks: int = 24) -> FloatArray:
+        """Greedy shortcuts of a guided path: from each kept waypoint, the farthest later one reachable
+        by a straight, checked motion (with the held object, if any); at most ``max_checks`` checks."""
+        keep, i, checks = [0], 0, 0
+        while i < len(path) - 1:
+            nxt = i + 1
+            for j in range(len(path) - 1, i + 1, -1):
+                if checks >= max_checks:
+                    break
+                checks += 1
+                if not self.checker.edge_collides(path[i], path[j]):
+                    nxt = j
+                    break
+            keep.append(nxt)
+            i = nxt
+        return path[keep]
 
     def _attempt(self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float) -> Plan:
         names = tuple(str(a) for a in actions)
@@ -184,6 +204,8 @@ class SequenceGeometry:
         empty = np.zeros((0, self.model.nq))
 
         def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
+            self.rg.drawers({c: 0.0 for c in self.drawers})
+            self.checker.set_objects([])
             return Plan(
                 False,
                 planner,
@@ -211,6 +233,10 @@ class SequenceGeometry:
                 q_prev = q_leave
                 continue
             self.rg.drawers(openings)
+            before = kf.object_poses[k - 1] if k else {o.name: o.T for o in self.scene.objects}
+            self.checker.set_objects(  # the objects where they stand are obstacles for the guided path
+                [replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held]
+            )
             if a.name == "take_knob":  # approached along the drawer's axis
                 q_pre = self._along_axis(q_k, a.obj, APPROACH)
                 if self.checker(q_pre):
@@ -240,6 +266,7 @@ class SequenceGeometry:
             phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically
             q_prev = q_pre
         self.rg.drawers({c: 0.0 for c in self.drawers})
+        self.checker.set_objects([])
         validation = validate_plan(self.scene, phases)
         reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
         return Plan(

@@ -17,9 +17,11 @@ from dataclasses import replace
 
 import numpy as np
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import Box
 
 __all__ = ["CLEARANCE", "WorldChecker"]
 
@@ -54,7 +56,9 @@ class WorldChecker:
         self.world = build_world(replace(scene, objects=()), tags=False)
         self.robot, self.client = self.world.robot, self.world.client
         self.model = self.world.robot_model
-        self.bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]
+        self._fixed_bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]
+        self._object_bodies: list[int] = []
+        self.bodies = list(self._fixed_bodies)
         self.clearance = clearance
         self.radii = joint_radii(self.model, arm_group)
         self.arm = np.array(self.model.group(arm_group))
@@ -68,8 +72,22 @@ class WorldChecker:
 
     @property
     def world_changed(self) -> bool:
-        """True while a drawer is not closed: the graph's remembered edge verdicts do not hold."""
-        return any(d > 0.0 for d in self.openings.values())
+        """True while a drawer is not closed or objects are obstacles: the graph's remembered edge
+        verdicts (fixtures only, drawers closed) do not hold."""
+        return any(d > 0.0 for d in self.openings.values()) or bool(self._object_bodies)
+
+    def set_objects(self, boxes: list[Box]) -> None:
+        """Make these boxes (the movable objects where they stand) obstacles too, replacing earlier ones."""
+        for b in self._object_bodies:
+            p.removeBody(b, physicsClientId=self.client)
+        self._object_bodies = []
+        for b in boxes:
+            col = p.createCollisionShape(
+                p.GEOM_BOX, halfExtents=[float(v) / 2 for v in b.size], physicsClientId=self.client
+            )
+            pos, quat = b.T[:3, 3].tolist(), Rotation.from_matrix(b.T[:3, :3]).as_quat().tolist()
+            self._object_bodies.append(p.createMultiBody(0.0, col, -1, pos, quat, physicsClientId=self.client))
+        self.bodies = [*self._fixed_bodies, *self._object_bodies]
 
     def set_drawers(self, openings: dict[str, float]) -> None:
         """Put the drawers at ``openings`` [m] (cabinet name -> opening; unnamed ones stay)."""
