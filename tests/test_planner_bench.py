@@ -36,3 +36,15 @@ def test_bench_rejects_unknown_planners_and_bad_worker_counts():
 def test_cluster_mode_without_dask_says_what_it_needs():
     with pytest.raises(RlgpError, match="dask"):
         run_planner_bench(SORTING, ["rlgp"], seeds=1, cluster="tcp://127.0.0.1:8786")
+
+
+def test_a_run_that_crashes_natively_is_a_failed_run_not_the_end_of_the_sweep(monkeypatch):
+    import os
+    import signal
+
+    from rlgp_exec.planning import bench
+
+    monkeypatch.setattr(bench, "run_job", lambda *_: os.kill(os.getpid(), signal.SIGSEGV))  # in the child
+    record, xy = bench.run_isolated(str(SORTING), "rlgp", 0)
+    assert not record["success"] and xy == []
+    assert record["reason"] == f"crashed: the planning process ended with exit code {-signal.SIGSEGV}"

@@ -5,8 +5,9 @@ Seed k randomises the scene's object poses within its ``random`` ranges (seed 0 
 written). A run that fails is recorded with its reason. The reachability graph is built once per
 scene (cached) and not counted in planning time; its build time is reported separately.
 
-``workers`` > 1 runs the (seed, planner) jobs in that many processes (``concurrent.futures``), each
-job loading the scene file itself; ``cluster`` (a Dask scheduler address, e.g. ``tcp://host:8786``)
+Every (seed, planner) job runs in a child process of its own (a native crash is a failed run, not the
+end of the sweep); ``workers`` > 1 keeps that many running at once (``concurrent.futures``), each job
+loading the scene file itself; ``cluster`` (a Dask scheduler address, e.g. ``tcp://host:8786``)
 submits the same jobs to an existing Dask cluster instead (the workers must have this project
 installed and the scene file at the same path). ``plot`` writes the successful runs' base paths
 (``planning.plot``).
@@ -15,13 +16,15 @@ installed and the scene file at the same path). ``plot`` writes the successful r
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import os
 import platform
 import sys
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ThreadPoolExecutor, as_completed
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 
@@ -30,7 +33,7 @@ from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
 from rlgp_exec.scene import load_scene, randomize
 
-__all__ = ["run_job", "run_planner_bench"]
+__all__ = ["run_isolated", "run_job", "run_planner_bench"]
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +55,37 @@ def run_job(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[f
     return {**result.summary(), "seed": seed, "wall_s": wall}, xy
 
 
+def _child(queue, scene_path: str, planner: str, seed: int) -> None:
+    queue.put(run_job(scene_path, planner, seed))
+
+
+def run_isolated(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
+    """``run_job`` in a child process of its own: a native crash (PyBullet, OMPL, IPOPT) becomes a
+    failed run with its exit code instead of the end of the sweep."""
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_child, args=(queue, scene_path, planner, seed), daemon=True)
+    t0 = time.perf_counter()
+    proc.start()
+    try:
+        while True:
+            try:
+                return queue.get(timeout=1.0)
+            except Empty:
+                if not proc.is_alive():
+                    break
+        proc.join()
+        reason = f"crashed: the planning process ended with exit code {proc.exitcode}"
+        log.warning("seed %d %s: %s", seed, planner, reason)
+        wall = time.perf_counter() - t0
+        rec = {"success": False, "planner": planner, "planning_time_s": wall, "actions": [], "n_steps": 0,
+               "base_path_length_m": 0.0, "collision_free": None, "goal_met": None, "n_nlp": 0,
+               "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall}
+        return rec, []
+    finally:
+        proc.join(timeout=5.0)
+
+
 def _report(record: dict, done: int, total: int) -> None:
     ok = record["success"]
     print(
@@ -61,8 +95,8 @@ def _report(record: dict, done: int, total: int) -> None:
     )
 
 
-def _submit_all(jobs, submit: Callable[..., Future], scene_path: str) -> list[tuple[dict, list]]:
-    futures = {submit(run_job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
+def _submit_all(jobs, submit: Callable[..., Future], scene_path: str, job=run_isolated) -> list[tuple[dict, list]]:
+    futures = {submit(job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
     out: list[tuple[dict, list] | None] = [None] * len(jobs)
     for done, fut in enumerate(as_completed(futures), 1):
         out[futures[fut]] = fut.result()
@@ -79,7 +113,7 @@ def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
             "(pip install 'dask[distributed]'); valid without it: --workers K"
         ) from None
     with Client(address) as client:
-        return _submit_all(jobs, client.submit, scene_path)
+        return _submit_all(jobs, client.submit, scene_path, run_job)
 
 
 def run_planner_bench(
@@ -103,13 +137,13 @@ def run_planner_bench(
     t0 = time.perf_counter()
     if cluster:
         results = _on_cluster(jobs, cluster, scene_path)
-    elif workers and workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+    elif workers and workers > 1:  # K jobs at a time, each in a process of its own (run_isolated)
+        with ThreadPoolExecutor(max_workers=workers) as pool:
             results = _submit_all(jobs, pool.submit, scene_path)
     else:
         results = []
         for k, (seed, name) in enumerate(jobs):
-            results.append(run_job(scene_path, name, seed))
+            results.append(run_isolated(scene_path, name, seed))
             _report(results[-1][0], k + 1, len(jobs))
     sweep_s = time.perf_counter() - t0
     runs = [r for r, _ in results]
