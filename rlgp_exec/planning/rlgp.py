@@ -143,7 +143,8 @@ def plan_scene(
             if k >= max_candidates:
                 break
             if time.perf_counter() - t0 > time_budget_s:
-                return failed(f"timed out: {time_budget_s:.0f} s budget spent on {k} candidates; last: {reasons[-1]}")
+                first = reasons[0] if reasons else "none"
+                return failed(f"timed out: {time_budget_s:.0f} s budget spent on {k} candidates; first: {first}")
             actions = to_actions(cand.actions)
             if isinstance(actions, str):
                 reasons.append(actions)
