@@ -5,7 +5,7 @@ and objects from above, and each run's base path (x, y) [m] as a yellow line, on
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,7 @@ def _rect(ax, b: Box, **kw) -> None:
     ax.add_patch(Polygon(corners, closed=True, **kw))
 
 
-def plot_base_paths(scene: Scene, paths: dict[str, Sequence[FloatArray]], out: str | Path, title: str = "") -> Path:
+def plot_base_paths(scene: Scene, paths: Mapping[str, Sequence[FloatArray]], out: str | Path, title: str = "") -> Path:
     """Write a PNG with one panel per planner; ``paths[planner]`` holds (n, 2) base paths [m]."""
     import matplotlib
 

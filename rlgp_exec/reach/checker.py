@@ -78,14 +78,14 @@ class WorldChecker:
 
     def set_objects(self, boxes: list[Box]) -> None:
         """Make these boxes (the movable objects where they stand) obstacles too, replacing earlier ones."""
-        for b in self._object_bodies:
-            p.removeBody(b, physicsClientId=self.client)
+        for body in self._object_bodies:
+            p.removeBody(body, physicsClientId=self.client)
         self._object_bodies = []
-        for b in boxes:
+        for box in boxes:
             col = p.createCollisionShape(
-                p.GEOM_BOX, halfExtents=[float(v) / 2 for v in b.size], physicsClientId=self.client
+                p.GEOM_BOX, halfExtents=[float(v) / 2 for v in box.size], physicsClientId=self.client
             )
-            pos, quat = b.T[:3, 3].tolist(), Rotation.from_matrix(b.T[:3, :3]).as_quat().tolist()
+            pos, quat = box.T[:3, 3].tolist(), Rotation.from_matrix(box.T[:3, :3]).as_quat().tolist()
             self._object_bodies.append(p.createMultiBody(0.0, col, -1, pos, quat, physicsClientId=self.client))
         self.bodies = [*self._fixed_bodies, *self._object_bodies]
 

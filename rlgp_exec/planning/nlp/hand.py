@@ -91,7 +91,8 @@ def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
             T = np.eye(4)
             T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
             T[:3, 3] = xyz
-            out.setdefault(str(link.get("name")), []).append((T, float(cyl.get("radius")), float(cyl.get("length"))))
+            r, length = float(cyl.get("radius", "0")), float(cyl.get("length", "0"))
+            out.setdefault(str(link.get("name")), []).append((T, r, length))
     return out
 
 
@@ -141,7 +142,8 @@ def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) 
     T = np.eye(4)
     T[:3, 3] = (lo_l + hi_l) / 2
     size = hi_l - lo_l
-    return [(parent, Box("body", tuple(float(v) for v in size), T, (0.0, 0.0, 0.0, 1.0)))]
+    extents = (float(size[0]), float(size[1]), float(size[2]))
+    return [(parent, Box("body", extents, T, (0.0, 0.0, 0.0, 1.0)))]
 
 
 def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],

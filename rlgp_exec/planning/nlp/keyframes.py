@@ -271,8 +271,8 @@ def solve_keyframes(
             if x is None:  # follows the drawer: the previous keyframe, the base shifted along the axis
                 a = actions[k]
                 z = init[-1].copy()
-                d = opening_at[k][a.obj] - opening_at[k - 1][a.obj]
-                z[:2] += d * drawers[a.obj].axis_world[:2]
+                moved_m = opening_at[k][a.obj] - opening_at[k - 1][a.obj]
+                z[:2] += moved_m * drawers[a.obj].axis_world[:2]
                 init.append(z)
                 continue
             yaw = rng.uniform(-math.pi, math.pi)
