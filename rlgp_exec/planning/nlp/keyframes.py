@@ -56,7 +56,7 @@ ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeas
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
-DROP_GAP = 0.02  # [m] between objects dropped into one drawer (footprint circles)
+DROP_GAP = 0.02  # [m] between objects placed on one target or dropped into one drawer (footprint circles)
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 DRAWER_ACTIONS = ("take_knob", "open_drawer", "close_drawer")
@@ -161,7 +161,7 @@ def solve_keyframes(
     openings = {c: 0.0 for c in drawers}
     opening_at: list[dict[str, float]] = []  # the drawers' openings at each keyframe
     moved: set[str] = set()
-    dropped: dict[str, list[tuple[str, ca.SX, float]]] = {}  # cabinet -> (object, its x y, radius [m])
+    set_down: dict[str, list[tuple[str, ca.SX, float]]] = {}  # target -> (object, its x y, radius [m])
     held: str | None = None
     knob: str | None = None
     grasp: ca.SX | None = None
@@ -233,11 +233,11 @@ def solve_keyframes(
                 T_rect, half = v.drop_rect(openings[a.target], max(o.size[0], o.size[1]) / 2)
                 rim = v.rim_z(openings[a.target])
                 drop_above(T_obj, T_rect, half, o.size, rim + DROP_LOW, rim + DROP_HIGH, rows)
-                r_o = float(np.hypot(o.size[0], o.size[1])) / 2
-                for _, xy, r_other in dropped.get(a.target, []):  # apart from what is in there already
-                    rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + DROP_GAP) ** 2, ca.inf)
-                dropped.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
                 targets.append(T_rect[:3, 3] + np.array([0.0, 0.0, rim - T_rect[2, 3] + DROP_LOW + o.size[2]]))
+            r_o = float(np.hypot(o.size[0], o.size[1])) / 2
+            for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
+                rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + DROP_GAP) ** 2, ca.inf)
+            set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             moved.add(a.obj)
             held, grasp = None, None
         if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
