@@ -71,7 +71,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from rlgp_exec.planning.bench import run_planner_bench
 
         planners = (args.planners or "rlgp,lgp").split(",")
-        result = run_planner_bench(task, planners, args.seeds)
+        result = run_planner_bench(
+            task, planners, args.seeds, workers=args.workers, cluster=args.cluster, plot=args.plot
+        )
     else:
         print(
             f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, executive, "
@@ -372,7 +374,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--planners")
     s.add_argument("--seeds", type=int, default=20)
     s.add_argument("--seed", type=int)
-    s.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    s.add_argument(
+        "--workers", type=int, default=None,
+        help="worker processes (reachability: default all cores; planners: default 1, seeds run in sequence)",
+    )
+    s.add_argument("--cluster", help="planners: a Dask scheduler address (tcp://host:8786) to run the sweep on")
+    s.add_argument("--plot", help="planners: write the base trajectories (top view, one panel per planner) to this PNG")
     s.add_argument("--json")
     s.set_defaults(func=cmd_bench)
 

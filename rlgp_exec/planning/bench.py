@@ -4,15 +4,27 @@ seed (so their ratio holds on a noisy machine), each plan validated by replay.
 Seed k randomises the scene's object poses within its ``random`` ranges (seed 0 is the file as
 written). A run that fails is recorded with its reason. The reachability graph is built once per
 scene (cached) and not counted in planning time; its build time is reported separately.
+
+Every (seed, planner) job runs in a child process of its own (a native crash is a failed run, not the
+end of the sweep); ``workers`` > 1 keeps that many running at once (``concurrent.futures``), each job
+loading the scene file itself; ``cluster`` (a Dask scheduler address, e.g. ``tcp://host:8786``)
+submits the same jobs to an existing Dask cluster instead (the workers must have this project
+installed and the scene file at the same path). ``plot`` writes the successful runs' base paths
+(``planning.plot``).
 """
 
 from __future__ import annotations
 
+import logging
+import multiprocessing as mp
 import os
 import platform
 import sys
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor, as_completed
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 
@@ -21,33 +33,120 @@ from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
 from rlgp_exec.scene import load_scene, randomize
 
-__all__ = ["run_planner_bench"]
+__all__ = ["run_isolated", "run_job", "run_planner_bench"]
+
+log = logging.getLogger(__name__)
 
 
 def _median(xs: list[float]) -> float | None:
     return float(np.median(xs)) if xs else None
 
 
-def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -> dict:
+def run_job(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
+    """One bench run (in any process): its record, and the base path [[x, y], ...] [m] if it succeeded."""
+    base = load_scene(scene_path)
+    scene = base if seed == 0 else randomize(base, seed)
+    t0 = time.perf_counter()
+    result = plan(scene, planner, seed=seed)
+    wall = time.perf_counter() - t0
+    xy: list[list[float]] = []
+    if result.success:
+        xy = np.vstack([ph.path[:, :2] for ph in result.phases]).tolist() if result.phases else []
+    return {**result.summary(), "seed": seed, "wall_s": wall}, xy
+
+
+def _child(queue, scene_path: str, planner: str, seed: int) -> None:
+    queue.put(run_job(scene_path, planner, seed))
+
+
+def run_isolated(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
+    """``run_job`` in a child process of its own: a native crash (PyBullet, OMPL, IPOPT) becomes a
+    failed run with its exit code instead of the end of the sweep."""
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_child, args=(queue, scene_path, planner, seed), daemon=True)
+    t0 = time.perf_counter()
+    proc.start()
+    try:
+        while True:
+            try:
+                return queue.get(timeout=1.0)
+            except Empty:
+                if not proc.is_alive():
+                    break
+        proc.join()
+        reason = f"crashed: the planning process ended with exit code {proc.exitcode}"
+        log.warning("seed %d %s: %s", seed, planner, reason)
+        wall = time.perf_counter() - t0
+        rec = {"success": False, "planner": planner, "planning_time_s": wall, "actions": [], "n_steps": 0,
+               "base_path_length_m": 0.0, "collision_free": None, "goal_met": None, "n_nlp": 0,
+               "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall}
+        return rec, []
+    finally:
+        proc.join(timeout=5.0)
+
+
+def _report(record: dict, done: int, total: int) -> None:
+    ok = record["success"]
+    print(
+        f"  [{done:3d}/{total}] seed {record['seed']:3d} {record['planner']:5s} {'ok  ' if ok else 'FAIL'} "
+        f"{record['planning_time_s']:7.2f} s {'' if ok else record['reason'][:100]}",
+        file=sys.stderr,
+    )
+
+
+def _submit_all(jobs, submit: Callable[..., Future], scene_path: str, job=run_isolated) -> list[tuple[dict, list]]:
+    futures = {submit(job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
+    out: list[tuple[dict, list] | None] = [None] * len(jobs)
+    for done, fut in enumerate(as_completed(futures), 1):
+        out[futures[fut]] = fut.result()
+        _report(out[futures[fut]][0], done, len(jobs))  # type: ignore[index]
+    return out  # type: ignore[return-value]
+
+
+def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
+    try:
+        from dask.distributed import Client
+    except ModuleNotFoundError:
+        raise RlgpError(
+            f"bench --cluster {address}: needs Dask's distributed scheduler in this environment "
+            "(pip install 'dask[distributed]'); valid without it: --workers K"
+        ) from None
+    with Client(address) as client:
+        return _submit_all(jobs, client.submit, scene_path, run_job)
+
+
+def run_planner_bench(
+    scene_path: str | Path,
+    planners: list[str],
+    seeds: int,
+    workers: int | None = None,
+    cluster: str | None = None,
+    plot: str | Path | None = None,
+) -> dict:
     valid = planner_names()
     bad = [p for p in planners if p not in valid]
     if bad:
         raise RlgpError(f"unknown planner(s) {bad}; valid: {valid}")
+    if workers is not None and workers < 1:
+        raise RlgpError(f"--workers {workers}: must be at least 1")
+    scene_path = str(Path(scene_path).resolve())
     base = load_scene(scene_path)
-    _, stats = load_or_build(base)
-    runs = []
-    for seed in range(seeds):
-        scene = base if seed == 0 else randomize(base, seed)
-        for name in planners:
-            t0 = time.perf_counter()
-            result = plan(scene, name, seed=seed)
-            wall = time.perf_counter() - t0
-            runs.append({**result.summary(), "seed": seed, "wall_s": wall})
-            print(
-                f"  seed {seed:3d} {name:5s} {'ok  ' if result.success else 'FAIL'} {result.planning_time_s:7.2f} s "
-                f"{result.reason[:100] if not result.success else ''}",
-                file=sys.stderr,
-            )
+    _, stats = load_or_build(base)  # once, before any worker: they all read the cache
+    jobs = [(seed, name) for seed in range(seeds) for name in planners]  # interleaved, seed by seed
+    t0 = time.perf_counter()
+    if cluster:
+        results = _on_cluster(jobs, cluster, scene_path)
+    elif workers and workers > 1:  # K jobs at a time, each in a process of its own (run_isolated)
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            results = _submit_all(jobs, pool.submit, scene_path)
+    else:
+        results = []
+        for k, (seed, name) in enumerate(jobs):
+            results.append(run_isolated(scene_path, name, seed))
+            _report(results[-1][0], k + 1, len(jobs))
+    sweep_s = time.perf_counter() - t0
+    runs = [r for r, _ in results]
     summary = {}
     for name in planners:
         rs = [r for r in runs if r["planner"] == name]
@@ -61,12 +160,22 @@ def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -
             "steps_median": _median([r["n_steps"] for r in ok]),
             "n_nlp_median": _median([r["n_nlp"] for r in ok]),
         }
-    return {
+    out = {
         "task": base.name,
         "seeds": seeds,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "workers": 1 if cluster is None and not workers else (workers or 0),
+        "cluster": cluster,
+        "sweep_wall_s": sweep_s,
         "graph_build_s": stats.build_time_s,
         "graph_from_cache": stats.from_cache,
         "runs": runs,
         "summary": summary,
     }
+    if plot:
+        from rlgp_exec.planning.plot import plot_base_paths
+
+        paths = {name: [np.asarray(xy) for r, xy in results if r["planner"] == name and xy] for name in planners}
+        title = f"{base.name}: base paths ({seeds} seeds; objects of seed 0)"
+        out["plot"] = str(plot_base_paths(base, paths, plot, title))
+    return out

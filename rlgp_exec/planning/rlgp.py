@@ -7,8 +7,10 @@ height up, for a place), plus a constant per action; a site the graph cannot rea
 ``UNREACHABLE`` (the sequence is pushed to the back, not dropped). The baseline ("lgp", our stand-in
 for RHH-LGP) uses the planar distance between sites instead, from the same search.
 
-Geometric layers available here: pick, place (on regions and fixtures). Candidates with other actions
-(stack, the drawer actions) are skipped with a reason; the result says so when nothing else remains.
+Geometric layers available here: pick, place (on regions and fixtures), and the drawer actions
+take_knob, open_drawer, close_drawer, drop (their site is the knob, or the open drawer's interior).
+Candidates with other actions (stack, pick_from_drawer) are skipped with a reason; the result says so
+when nothing else remains.
 """
 
 from __future__ import annotations
@@ -21,9 +23,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.nlp.keyframes import Action
+from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
+from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.grounding import ground_scene
 from rlgp_exec.planning.symbolic.heuristics import distance_cost, goal_lower_bound
 from rlgp_exec.planning.symbolic.model import GroundAction
@@ -38,7 +42,8 @@ log = logging.getLogger(__name__)
 PLANNERS = ("rlgp", "lgp")
 PER_ACTION = 1.0
 UNREACHABLE = 1e3
-GEOMETRIC_ACTIONS = ("pick", "place")
+TIME_BUDGET_S = 90.0  # [s] planning time after which no new candidate is tried
+GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
 def to_actions(plan: Sequence[GroundAction]) -> list[Action] | str:
@@ -47,17 +52,28 @@ def to_actions(plan: Sequence[GroundAction]) -> list[Action] | str:
     for a in plan:
         if a.name not in GEOMETRIC_ACTIONS:
             return f"{a}: the geometric layer handles {list(GEOMETRIC_ACTIONS)} so far"
-        out.append(Action(a.name, a.args[1], a.args[2] if a.name == "place" else None))
+        if a.name in DRAWER_ACTIONS:
+            out.append(Action(a.name, a.args[1]))
+        else:
+            out.append(Action(a.name, a.args[1], a.args[2] if a.name in ("place", "drop") else None))
     return out
 
 
-def _site(geo: SequenceGeometry, a: GroundAction, where: dict[str, FloatArray]) -> FloatArray:
+def _site(
+    geo: SequenceGeometry, a: GroundAction, where: dict[str, FloatArray], openings: dict[str, float]
+) -> FloatArray:
+    """Where the hand goes for action ``a`` (world frame [m]), objects at ``where``, drawers at ``openings``
+    (after the action for open/close: the knob where the drawer ends)."""
     scene = geo.scene
     if a.name == "pick":
         o = scene.object(a.args[1])
         return where[o.name] + np.array([0.0, 0.0, o.size[2] / 2])
-    from rlgp_exec.planning.nlp.keyframes import _target_surface
-
+    if a.name in DRAWER_ACTIONS:
+        return geo.drawers[a.args[1]].T_world_knob(openings[a.args[1]])[:3, 3]
+    if a.name == "drop":
+        v, o = geo.drawers[a.args[2]], scene.object(a.args[1])
+        T, _ = v.drop_rect(max(openings[a.args[2]], v.travel), max(o.size[:2]) / 2)
+        return np.array([T[0, 3], T[1, 3], v.rim_z(openings[a.args[2]]) + o.size[2]])
     T, _, z = _target_surface(scene, a.args[2])
     return np.array([T[0, 3], T[1, 3], z + scene.object(a.args[1]).size[2]])
 
@@ -66,18 +82,27 @@ def rg_cost(geo: SequenceGeometry):
     """heuristicCost from the reachability graph (cached in its solution library)."""
     start = {o.name: np.asarray(o.pose[:3], float) for o in geo.scene.objects}
 
+    def after(a: GroundAction, openings: dict[str, float]) -> None:
+        if a.name == "open_drawer":
+            openings[a.args[1]] = geo.drawers[a.args[1]].travel
+        elif a.name == "close_drawer":
+            openings[a.args[1]] = 0.0
+
     def cost(prefix: Sequence[GroundAction], action: GroundAction) -> float:
         where = dict(start)
+        openings = {c: 0.0 for c in geo.drawers}
         here = geo.hand_start
         for a in prefix:
             if a.name not in GEOMETRIC_ACTIONS:
                 return UNREACHABLE
-            here = _site(geo, a, where)
-            if a.name == "place":
+            after(a, openings)
+            here = _site(geo, a, where, openings)
+            if a.name in ("place", "drop"):
                 where[a.args[1]] = here - np.array([0.0, 0.0, geo.scene.object(a.args[1]).size[2] / 2])
         if action.name not in GEOMETRIC_ACTIONS:
             return UNREACHABLE
-        h = geo.heuristic_cost(here, _site(geo, action, where))
+        after(action, openings)
+        h = geo.heuristic_cost(here, _site(geo, action, where, openings))
         return PER_ACTION + (h if math.isfinite(h) else UNREACHABLE)
 
     return cost
@@ -90,20 +115,36 @@ def plan_scene(
     max_expansions: int = 20_000,
     params: RGParams | None = None,
     seed: int = 0,
+    time_budget_s: float = TIME_BUDGET_S,
 ) -> Plan:
-    """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not."""
+    """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not.
+    No new candidate is started after ``time_budget_s`` [s] (the one under way finishes)."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
     t0 = time.perf_counter()
+    try:
+        problem = ground_scene(scene, manipulators=[goal_manipulator(scene)])
+    except SymbolicError as e:  # before any geometry: a bad goal is named at once
+        dt = time.perf_counter() - t0
+        return Plan(False, planner, (), np.zeros((0, 0)), (), dt, 0, 0, None, f"invalid goal: {e}")
     geo = SequenceGeometry(scene, params, seed)
     try:
-        problem = ground_scene(scene, manipulators=[geo.model.manipulator().name])
         cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
         search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
         reasons: list[str] = []
+
+        def failed(reason: str) -> Plan:
+            return Plan(
+                False, planner, (), np.zeros((0, geo.model.nq)), (), time.perf_counter() - t0, geo.n_nlp,
+                search.stats.expanded, None, reason,
+            )
+
         for k, cand in enumerate(search):
             if k >= max_candidates:
                 break
+            if time.perf_counter() - t0 > time_budget_s:
+                first = reasons[0] if reasons else "none"
+                return failed(f"timed out: {time_budget_s:.0f} s budget spent on {k} candidates; first: {first}")
             actions = to_actions(cand.actions)
             if isinstance(actions, str):
                 reasons.append(actions)
@@ -113,18 +154,13 @@ def plan_scene(
             if result.success:
                 return result
             reasons.append(f"{cand}: {result.reason}")
-        why = "; ".join(reasons[-3:]) or "no symbolic plan"
-        return Plan(
-            False,
-            planner,
-            (),
-            np.zeros((0, geo.model.nq)),
-            (),
-            time.perf_counter() - t0,
-            geo.n_nlp,
-            search.stats.expanded,
-            None,
-            f"no valid plan after {len(reasons)} candidates: {why}",
-        )
+            if len(reasons) == 1:  # the first geometric failure: is the goal reachable at all?
+                infeasible = unreachable_goal(geo, problem)
+                if infeasible is not None:
+                    return failed(infeasible)
+        if search.stats.exhausted and not reasons:
+            return failed("infeasible: no symbolic plan reaches the goal")
+        why = "; ".join(reasons[-3:]) or "no symbolic plan within the search budget"
+        return failed(f"no valid plan after {len(reasons)} candidates: {why}")
     finally:
         geo.close()

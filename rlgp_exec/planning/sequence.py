@@ -17,14 +17,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
+from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger_spheres
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.plan import Plan
-from rlgp_exec.planning.shortcut import shortcut
 from rlgp_exec.planning.validate import Phase, validate_plan
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import object_box
 
 __all__ = ["APPROACH", "SequenceGeometry"]
 
@@ -43,7 +45,12 @@ class SequenceGeometry:
         self.q0 = nominal_q(self.model, scene)
         self.graph, self.graph_stats = load_or_build(scene, params=params or RGParams())
         self.checker = WorldChecker(scene, self.model.manipulator().group)
-        self.rg = ReachabilityPlanner(self.graph, ReachIK(self.model, scene, self.q0), self.checker, rng_seed=seed)
+        self.ik = ReachIK(self.model, scene, self.q0)
+        self.rg = ReachabilityPlanner(self.graph, self.ik, self.checker, rng_seed=seed)
+        self.drawers = drawer_views(scene)
+        self.hand = finger_spheres(self.checker.robot, self.model, self.q0)
+        self.self_spheres = arm_link_spheres(self.model)
+        self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
 
@@ -60,15 +67,23 @@ class SequenceGeometry:
         return self.rg.estimate(x1, x2)
 
     def _above(self, q_k: FloatArray) -> list[FloatArray] | None:
-        """Configurations lifting the hand APPROACH straight up from q_k, the base where it is: the lift
+        """Lift APPROACH straight up from q_k, else half of it (a tall shelf may leave no more room)."""
+        for rise in (APPROACH, APPROACH / 2):
+            chain = self._rise(q_k, rise)
+            if chain is not None:
+                return chain
+        return None
+
+    def _rise(self, q_k: FloatArray, rise: float) -> list[FloatArray] | None:
+        """Configurations lifting the hand ``rise`` [m] straight up from q_k, the base where it is: the lift
         raised when it has the travel (one vertical motion), else the arm alone (differential IK, the hand
         keeping its orientation), as waypoints 3 cm apart."""
         for lift in ("arm_lift_joint", "torso_lift_joint"):
             if lift in self.model.joint_names:
                 i = self.model.index(lift)
-                if q_k[i] + APPROACH <= self.model.limits.upper[i]:
+                if q_k[i] + rise <= self.model.limits.upper[i]:
                     q = q_k.copy()
-                    q[i] += APPROACH
+                    q[i] += rise
                     return None if self.checker(q) else [q]
         # differential IK on the arm: the tool rises along world z without turning (a held object keeps
         # its attitude), 1 cm per step, re-linearised at every step
@@ -76,7 +91,7 @@ class SequenceGeometry:
         lo, hi = self.model.limits.lower[arm], self.model.limits.upper[arm]
         target = np.r_[0.0, 0.0, 0.01, 0.0, 0.0, 0.0]
         q, chain = q_k.copy(), []
-        for step in range(round(APPROACH / 0.01)):
+        for step in range(round(rise / 0.01)):
             J = self.model.jacobian(q, self.tool)[:, arm]
             dq = np.linalg.lstsq(J, target, rcond=1e-6)[0]
             q = q.copy()
@@ -85,7 +100,7 @@ class SequenceGeometry:
                 return None
             if step % 3 == 2:
                 chain.append(q)
-        return None if self.checker(chain[-1]) else chain
+        return None if not chain or self.checker(chain[-1]) else chain
 
     def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
         """The transport posture: raise the lift to the top, drive, lower it (three straight motions,
@@ -118,6 +133,57 @@ class SequenceGeometry:
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
         return replace(result, reason=" / ".join(reasons))
 
+    def _along_axis(self, q: FloatArray, cabinet: str, distance: float) -> FloatArray:
+        """q with the base moved ``distance`` [m] along the cabinet's opening axis (out of it if > 0)."""
+        out = q.copy()
+        out[:2] += distance * self.drawers[cabinet].axis_world[:2]
+        return out
+
+    def _in_collision(self, q: FloatArray, openings: dict[str, float], action: Action) -> bool:
+        """The keyframe check: q penetrates nothing with the drawers at ``openings`` (the fingers may
+        touch the knob of a drawer action's cabinet)."""
+        self.checker.set_drawers(openings)
+        self.checker.touch_knob(action.obj if action.name in DRAWER_ACTIONS else None)
+        try:
+            return self.checker.penetrates(q)
+        finally:
+            self.checker.touch_knob(None)
+
+    def _guided(self, q_prev: FloatArray, q_pre: FloatArray, held: str | None, T_tool_obj: FloatArray | None):
+        """The guided path q_prev -> q_pre (transport posture, else the graph), or the failure reason."""
+        x1, x2 = self.model.fk(q_prev, self.tool)[:3, 3], self.model.fk(q_pre, self.tool)[:3, 3]
+        if held is None:
+            self.rg.carrying(None)
+        else:  # the graph's paths must clear the held object too
+            self.rg.carrying(np.asarray(self.scene.object(held).size), T_tool_obj)
+        try:
+            transport = self._transport(q_prev, q_pre)
+            if transport is not None:
+                return transport
+            res = self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
+            if not res.ok:
+                return f"{res.status.value}: {res.reason}"
+            return self._shortcut(res.path)
+        finally:
+            self.rg.carrying(None)
+
+    def _shortcut(self, path: FloatArray, max_checks: int = 24) -> FloatArray:
+        """Greedy shortcuts of a guided path: from each kept waypoint, the farthest later one reachable
+        by a straight, checked motion (with the held object, if any); at most ``max_checks`` checks."""
+        keep, i, checks = [0], 0, 0
+        while i < len(path) - 1:
+            nxt = i + 1
+            for j in range(len(path) - 1, i + 1, -1):
+                if checks >= max_checks:
+                    break
+                checks += 1
+                if not self.checker.edge_collides(path[i], path[j]):
+                    nxt = j
+                    break
+            keep.append(nxt)
+            i = nxt
+        return path[keep]
+
     def _attempt(self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
@@ -127,12 +193,19 @@ class SequenceGeometry:
             self.q0,
             actions,
             seed=self.seed,
-            in_collision=self.checker.penetrates,
+            in_collision=self._in_collision,
             max_tilt=tilt,
+            ik=self.ik,
+            hand=self.hand,
+            self_spheres=self.self_spheres,
+            body=self.body,
+            lift_room=APPROACH,
         )
         empty = np.zeros((0, self.model.nq))
 
         def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
+            self.rg.drawers({c: 0.0 for c in self.drawers})
+            self.checker.set_objects([])
             return Plan(
                 False,
                 planner,
@@ -149,34 +222,51 @@ class SequenceGeometry:
         if not kf.ok:
             return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
         phases: list[Phase] = []
-        q_prev, held = self.q0, None
+        q_prev, held, T_tool_obj = self.q0, None, None
+        openings = {c: 0.0 for c in self.drawers}
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
-            up = self._above(q_k)
-            if up is None:
-                return fail(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
-            q_pre = up[-1]
-            x1, x2 = self.model.fk(q_prev, self.tool)[:3, 3], self.model.fk(q_pre, self.tool)[:3, 3]
-            if held is None:
-                self.rg.carrying(None)
-            else:  # the graph's paths must clear the held object too (grasped at the previous keyframe)
-                T_tool_obj = np.linalg.inv(self.model.fk(kf.keyframes[k - 1], self.tool)) @ kf.object_poses[k - 1][held]
-                self.rg.carrying(np.asarray(self.scene.object(held).size), T_tool_obj)
-            try:
-                transport = self._transport(q_prev, q_pre)
-                res = None if transport is not None else self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
-                if res is not None and res.ok:  # straighten the graph's wandering waypoints
-                    res = replace(res, path=shortcut(res.path, self.checker.edge_collides))
-            finally:
-                self.rg.carrying(None)
-            if res is not None and not res.ok:
-                return fail(f"no guided path to {a}: {res.status.value}: {res.reason}", tuple(phases))
-            guided = transport if transport is not None else res.path  # type: ignore[union-attr]
-            grasp, release = (a.obj, None) if a.name == "pick" else (None, a.obj)
+            if a.name in ("open_drawer", "close_drawer"):  # the hand on the knob drives the drawer
+                phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True))
+                openings = dict(kf.openings[k])
+                q_leave = self._along_axis(q_k, a.obj, APPROACH)  # let go, back off along the axis
+                phases.append(Phase(np.array([q_k, q_leave]), None, knob=a.obj))
+                q_prev = q_leave
+                continue
+            self.rg.drawers(openings)
+            before = kf.object_poses[k - 1] if k else {o.name: o.T for o in self.scene.objects}
+            self.checker.set_objects(  # the objects where they stand are obstacles for the guided path
+                [replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held]
+            )
+            if a.name == "take_knob":  # approached along the drawer's axis
+                q_pre = self._along_axis(q_k, a.obj, APPROACH)
+                if self.checker(q_pre):
+                    return fail(f"no approach configuration {APPROACH:.2f} m out from {a}", tuple(phases))
+                up: list[FloatArray] = []
+            else:
+                up_or_none = self._above(q_k)
+                if up_or_none is None:
+                    return fail(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
+                up = up_or_none
+                q_pre = up[-1]
+            guided = self._guided(q_prev, q_pre, held, T_tool_obj)
+            if isinstance(guided, str):
+                return fail(f"no guided path to {a}: {guided}", tuple(phases))
             down = np.vstack([guided, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
-            phases.append(Phase(down, held, grasp=grasp, release=release))
-            held = a.obj if a.name == "pick" else None
+            if a.name == "take_knob":
+                phases.append(Phase(down, None, knob=a.obj))
+                q_prev = q_k
+                continue
+            if a.name == "pick":
+                phases.append(Phase(down, None, grasp=a.obj))
+                held = a.obj
+                T_tool_obj = np.linalg.inv(self.model.fk(q_k, self.tool)) @ kf.object_poses[k][a.obj]
+            else:
+                phases.append(Phase(down, held, release=a.obj, fall=a.name == "drop"))
+                held, T_tool_obj = None, None
             phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically
             q_prev = q_pre
+        self.rg.drawers({c: 0.0 for c in self.drawers})
+        self.checker.set_objects([])
         validation = validate_plan(self.scene, phases)
         reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
         return Plan(

@@ -5,16 +5,21 @@ of a phase rides with the hand (its pose relative to the tool frozen at the gras
 Collisions are checked for the robot (against the world and itself; the held object is the hand's)
 and for the held object (against everything but the robot). The goal literals are then checked in the
 final simulated state; a literal this checker cannot evaluate counts as unmet, never as met.
+
+Drawers (``drawer_replay``): a phase that ``drives_drawer`` moves the drawer joint with the hand on the
+knob (objects inside ride along; leaving the drawer's axis is a violation); the fingers may touch the
+drawer of the phase's ``knob``; an object released with ``fall`` drops straight down until it rests.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning.drawer_replay import DrawerMotion, drawer_literal_holds, settle
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.types import Literal
@@ -33,6 +38,9 @@ class Phase:
     held: str | None
     grasp: str | None = None
     release: str | None = None
+    knob: str | None = None  # the hand is at this cabinet's knob: the fingers may touch its drawer
+    drives_drawer: bool = False  # the hand holds the knob: the drawer follows it along its axis
+    fall: bool = False  # the released object falls onto whatever is below it (a drop into a drawer)
 
 
 @dataclass(frozen=True)
@@ -42,6 +50,7 @@ class Validation:
     collisions: tuple[str, ...]
     unmet: tuple[str, ...]
     final_poses: dict[str, FloatArray]
+    final_openings: dict[str, float] = field(default_factory=dict)  # every drawer's opening [m] at the end
 
     @property
     def ok(self) -> bool:
@@ -57,8 +66,13 @@ def _region_rect(scene: Scene, name: str) -> tuple[FloatArray, tuple[float, floa
         return None
 
 
-def goal_holds(scene: Scene, literal: Literal, poses: dict[str, FloatArray]) -> tuple[bool, str]:
-    """(holds, why) for one goal literal in a state given by object poses."""
+def goal_holds(
+    scene: Scene, literal: Literal, poses: dict[str, FloatArray], openings: dict[str, float] | None = None
+) -> tuple[bool, str]:
+    """(holds, why) for one goal literal in a state given by object poses and drawer openings [m]
+    (None: every drawer as the scene file has it, closed)."""
+    if literal.predicate in ("in", "open", "closed"):
+        return drawer_literal_holds(scene, literal, poses, openings or {})
     if literal.predicate == "on":
         obj, target = literal.args
         o = scene.object(obj)
@@ -94,14 +108,24 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                 raise ValueError(f"phase {k} holds {ph.held} but nothing was grasped")
             pairs = zip(ph.path[:-1], ph.path[1:], strict=True)
             qs = np.vstack([interpolate_path(world, a, b, step) for a, b in pairs]) if len(ph.path) > 1 else ph.path
+            motion = None
+            if ph.drives_drawer and ph.knob is not None:
+                motion = DrawerMotion.start(world, ph.knob, model.fk(ph.path[0], tool))
             for q in qs:
                 robot.set_q(q)
+                if motion is not None:
+                    violation = motion.follow(world, model.fk(q, tool))
+                    if violation is not None:
+                        collisions.append(f"phase {k}: {violation}")
+                        break
                 if ph.held is not None:
                     world.set_object_pose(ph.held, model.fk(q, tool) @ held_T)
                 for c in robot.contacts(tolerance):
                     name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
                     if ph.grasp is not None and name == ph.grasp and c.link in fingers:
                         continue  # the fingers close round the object they are about to grasp
+                    if ph.knob is not None and name == ph.knob and c.other_link == "0" and c.link in fingers:
+                        continue  # the fingers round the knob (link 0 of a cabinet: its drawer)
                     collisions.append(f"phase {k}: robot {c.link} ~ {name}")
                 if ph.held is not None:
                     hb = world.objects[ph.held]
@@ -130,16 +154,19 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
                 held_T = None
+                if ph.fall:
+                    settle(world, ph.release, robot.id, tolerance)
         poses = {name: world.object_pose(name) for name in world.objects}
+        openings = {name: world.drawer_opening(name) for name in world.cabinets}
     finally:
         world.close()
     unmet = []
     for lit in scene.goal.literals:
-        ok, why = goal_holds(scene, lit, poses)
+        ok, why = goal_holds(scene, lit, poses, openings)
         if not ok:
             unmet.append(why)
     return Validation(
-        not collisions, not unmet and not collisions, tuple(dict.fromkeys(collisions)), tuple(unmet), poses
+        not collisions, not unmet and not collisions, tuple(dict.fromkeys(collisions)), tuple(unmet), poses, openings
     )
 
 

@@ -17,9 +17,11 @@ from dataclasses import replace
 
 import numpy as np
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import Box
 
 __all__ = ["CLEARANCE", "WorldChecker"]
 
@@ -54,13 +56,49 @@ class WorldChecker:
         self.world = build_world(replace(scene, objects=()), tags=False)
         self.robot, self.client = self.world.robot, self.world.client
         self.model = self.world.robot_model
-        self.bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]
+        self._fixed_bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]
+        self._object_bodies: list[int] = []
+        self.bodies = list(self._fixed_bodies)
         self.clearance = clearance
         self.radii = joint_radii(self.model, arm_group)
         self.arm = np.array(self.model.group(arm_group))
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
+        self.openings = {name: 0.0 for name in self.world.cabinets}  # the drawers, as the graph was built
+        self.knob: int | None = None  # a cabinet body whose drawer the fingers may touch (the hand on its knob)
+        hand = set(self.model.manipulator().links)
+        self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
+
+    @property
+    def world_changed(self) -> bool:
+        """True while a drawer is not closed or objects are obstacles: the graph's remembered edge
+        verdicts (fixtures only, drawers closed) do not hold."""
+        return any(d > 0.0 for d in self.openings.values()) or bool(self._object_bodies)
+
+    def set_objects(self, boxes: list[Box]) -> None:
+        """Make these boxes (the movable objects where they stand) obstacles too, replacing earlier ones."""
+        for body in self._object_bodies:
+            p.removeBody(body, physicsClientId=self.client)
+        self._object_bodies = []
+        for box in boxes:
+            col = p.createCollisionShape(
+                p.GEOM_BOX, halfExtents=[float(v) / 2 for v in box.size], physicsClientId=self.client
+            )
+            pos, quat = box.T[:3, 3].tolist(), Rotation.from_matrix(box.T[:3, :3]).as_quat().tolist()
+            self._object_bodies.append(p.createMultiBody(0.0, col, -1, pos, quat, physicsClientId=self.client))
+        self.bodies = [*self._fixed_bodies, *self._object_bodies]
+
+    def set_drawers(self, openings: dict[str, float]) -> None:
+        """Put the drawers at ``openings`` [m] (cabinet name -> opening; unnamed ones stay)."""
+        for name, d in openings.items():
+            if self.openings.get(name) != d:
+                self.world.set_drawer_opening(name, d)
+                self.openings[name] = d
+
+    def touch_knob(self, cabinet: str | None) -> None:
+        """Let the fingers touch ``cabinet``'s drawer (None: nothing)."""
+        self.knob = None if cabinet is None else self.world.cabinets[cabinet].body
 
     def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
         """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame."""
@@ -96,6 +134,8 @@ class WorldChecker:
         for a in bodies:
             for b in self.bodies:
                 for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
+                    if b == self.knob and a == self.robot.id and c[3] in self._fingers and c[4] == 0:
+                        continue  # the fingers round the knob
                     d = min(d, float(c[8]))
         return d
 

@@ -83,6 +83,10 @@ def plan_ompl(
         q = full(s)
         return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
 
+    if not (valid_q(checker, q1) and valid_q(checker, q2)):  # OMPL would spend its whole timeout on it
+        log.info("OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding)",
+                 "start" if not valid_q(checker, q1) else "goal", OMPL_CLEARANCE)
+        return None
     ss.setStateValidityChecker(valid)
     start, goal = space.allocState(), space.allocState()
     for k, i in enumerate(idx):
@@ -103,3 +107,8 @@ def plan_ompl(
         log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)
     log.info("OMPL %s found no certified path in %.1f s", planner, timeout)
     return None
+
+
+def valid_q(checker: WorldChecker, q: FloatArray) -> bool:
+    """OMPL's validity of a whole configuration: OMPL_CLEARANCE from the fixtures, no self-collision."""
+    return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)

@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 ENHANCE_SIGMAS = (0.25, 0.15, 0.08, 0.04)  # [m] the shrinking Gaussian's standard deviations
 ENHANCE_TRIES = 6  # samples per sigma
 MAX_REPLANS = 60
+MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback (each costs up to ~50 IK solves)
 
 
 class QueryStatus(enum.Enum):
@@ -112,8 +113,9 @@ class ReachabilityPlanner:
     # ------------------------------------------------------------------ checks
     def edge_valid(self, i: int, j: int) -> bool:
         """Check an edge once (lazily); remember the verdict in the graph. While carrying an object the
-        verdict holds for this query only: an edge too tight for the object may be fine for the hand."""
-        if self.in_collision.attached is not None:
+        verdict holds for this query only: an edge too tight for the object may be fine for the hand (and the
+        same while a drawer is out)."""
+        if self.in_collision.attached is not None or self.in_collision.world_changed:
             key = (min(i, j), max(i, j))
             if key not in self._carry_verdicts:
                 self.counters["edge_checks"] += 1
@@ -134,6 +136,13 @@ class ReachabilityPlanner:
         if self._carry_verdicts.get((min(u, v), max(u, v))) is False:
             return None  # hidden for this carrying query
         return d["weight"]
+
+    def drawers(self, openings: dict[str, float]) -> None:
+        """Plan the next queries with the drawers at ``openings`` [m]: while one is out, edge verdicts
+        hold for one query only (the graph remembers what holds with the drawers closed)."""
+        if openings != {k: self.in_collision.openings.get(k) for k in openings}:
+            self._carry_verdicts = {}
+        self.in_collision.set_drawers(openings)
 
     def carrying(self, size: FloatArray | None, T_tool_obj: FloatArray | None = None) -> None:
         """Plan the next queries with an object of box ``size`` (3,) held at T_tool_obj (None: hand only)."""
@@ -285,11 +294,13 @@ class ReachabilityPlanner:
                 (time.perf_counter() - t0) * 1e3,
                 f"no collision-free configuration reaches {x2.round(3)}",
             )
+        bridges = 0
         for _ in range(MAX_REPLANS):
             try:
                 nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
             except nx.NetworkXNoPath:
-                if not self._bridge(a, b):
+                bridges += 1
+                if bridges > MAX_BRIDGES or not self._bridge(a, b):
                     break
                 continue
             bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]

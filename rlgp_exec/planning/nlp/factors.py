@@ -122,3 +122,17 @@ def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows
     ly = R2[0, 1] * (p_xy[0] - T[0, 3]) + R2[1, 1] * (p_xy[1] - T[1, 3])
     rows.add(lx, -half[0], half[0])
     rows.add(ly, -half[1], half[1])
+
+
+def grasp_top_round(rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, float, float], rows: Rows, **kw) -> ca.SX:
+    """``grasp_top`` for a cylinder (axis up): the fingers may close across it from any side, so the
+    hand's roll is free (the optimiser can turn the open fingers away from a wall). Returns 1 + a_z."""
+    mine = Rows.empty()
+    tilt = grasp_top(rs, T_obj, size, mine, **kw)  # depth, max_tilt
+    # grasp_top's rows: tool position (3), approach, closing horizontal, then the faces' row: dropped
+    for g, lo, hi in list(zip(mine.g, mine.lower, mine.upper, strict=True))[:5]:
+        rows.add(g, lo, hi)
+    return tilt
+
+
+__all__ += ["grasp_top_round"]

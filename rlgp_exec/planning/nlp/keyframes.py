@@ -8,6 +8,12 @@ T_tool(z_place) T_tool_obj, upright on its target: resting on the surface, insid
 keyframe keeps the arm spheres clear of the fixtures and of the objects still where the scene put
 them, and the base clear of fixture footprints. The objective is the weighted squared distance
 between consecutive keyframes (from the start), a proxy for motion cost.
+
+Drawers (``nlp.drawer_factors``): ``take_knob`` puts the hand on the knob where the drawer is now;
+``open_drawer``/``close_drawer`` are the articulated constraint (the hand, holding the knob, moves with
+the drawer's prismatic joint by the change of opening; the knob is let go at the end); ``drop`` holds
+the object upright over the pulled-out part of an open drawer, a little below or above its rim. The
+drawer's boxes, at each keyframe's opening, are obstacles (but not the one whose knob the hand is on).
 """
 
 from __future__ import annotations
@@ -15,20 +21,32 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear, grasp_top, inside_rectangle
+from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
+from rlgp_exec.planning.nlp.factors import (
+    RobotSymbols,
+    Rows,
+    box_clear,
+    footprint_clear,
+    grasp_top,
+    grasp_top_round,
+    inside_rectangle,
+)
+from rlgp_exec.planning.nlp.hand import points_clear, self_clear
+from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import fixture_boxes, object_box
+from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
 
-__all__ = ["Action", "KeyframeResult", "solve_keyframes"]
+__all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
 
 log = logging.getLogger(__name__)
 W_BASE = 3.0  # base motion weighs more than arm motion in the objective
@@ -36,13 +54,21 @@ W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: o
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
+ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
+BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
+DROP_GAP = 0.02  # [m] between objects placed on one target or dropped into one drawer (footprint circles)
+DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
+ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
+DRAWER_ACTIONS = ("take_knob", "open_drawer", "close_drawer")
+KIND = {"pick": "grasp", "place": "placement", "take_knob": "knob grasp", "open_drawer": "knob",
+        "close_drawer": "knob", "drop": "drop"}
 
 
 @dataclass(frozen=True)
 class Action:
-    name: str  # "pick" | "place"
-    obj: str
-    target: str | None = None  # place: a region or a fixture
+    name: str  # one of ACTIONS
+    obj: str  # the object; the cabinet for take_knob, open_drawer, close_drawer
+    target: str | None = None  # place: a region or a fixture; drop: the cabinet
 
     def __str__(self) -> str:
         return f"({self.name} {self.obj}{' ' + self.target if self.target else ''})"
@@ -53,6 +79,7 @@ class KeyframeResult:
     ok: bool
     keyframes: FloatArray  # (K, nq)
     object_poses: tuple[dict[str, FloatArray], ...]  # after each action: T_world_obj of every object
+    openings: tuple[dict[str, float], ...]  # at each keyframe: every drawer's opening [m]
     cost: float
     violation: float
     solve_ms: float
@@ -92,64 +119,130 @@ def solve_keyframes(
     actions: list[Action],
     manipulator: str | None = None,
     seed: int = 0,
-    in_collision: Callable[[FloatArray], bool] | None = None,
+    in_collision: Callable[[FloatArray, dict[str, float], Action], bool] | None = None,
     max_tilt: float = 0.0,
+    ik: ReachIK | None = None,
+    hand: Sequence[tuple[FloatArray, float]] = (),
+    self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
+    body: Sequence[tuple[str, Box]] = (),
+    lift_room: float = 0.0,
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q)`` (the full PyBullet check,
-    self-collisions included, which the NLP's shapes do not model) rejects a solution. ``max_tilt``
-    [rad]: how far from vertical a grasp's approach may lean."""
+    self-collisions included, which the NLP's shapes do not model; it gets the drawers' openings [m]
+    at that keyframe and the action too) rejects a solution. ``max_tilt`` [rad]: how far from
+    vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
+    ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
+    ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
+    (``nlp.hand.body_obstacles``).
+    ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
+    its travel above it (the vertical leave is then one lift motion).
+    After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
     t0 = time.perf_counter()
     objs = {o.name: o for o in scene.objects}
+    drawers = drawer_views(scene)
     for a in actions:
-        if a.name not in ("pick", "place"):
-            raise RlgpError(f"keyframe NLP: unknown action {a.name!r}; valid: ['pick', 'place']")
-        if a.obj not in objs:
+        if a.name not in ACTIONS:
+            raise RlgpError(f"keyframe NLP: unknown action {a.name!r}; valid: {list(ACTIONS)}")
+        if a.name in DRAWER_ACTIONS:
+            if a.obj not in drawers:
+                raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.obj!r}; valid: {sorted(drawers)}")
+        elif a.obj not in objs:
             raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
-    ik = ReachIK(model, scene, q_start, manipulator)
+        if a.name == "drop" and a.target not in drawers:
+            raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
+    ik = ik if ik is not None else ReachIK(model, scene, q_start, manipulator)
     n, K = len(ik.idx), len(actions)
     Z = ca.SX.sym("z", n, K)
     rows = Rows.empty()
     fixture_rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
+    lift_name = model.joint_names[int(ik.idx[3])] if len(ik.idx) > 3 else ""
     poses: dict[str, FloatArray] = {name: o.T.copy() for name, o in objs.items()}
+    openings = {c: 0.0 for c in drawers}
+    opening_at: list[dict[str, float]] = []  # the drawers' openings at each keyframe
     moved: set[str] = set()
+    set_down: dict[str, list[tuple[str, ca.SX, float]]] = {}  # target -> (object, its x y, radius [m])
     held: str | None = None
+    knob: str | None = None
     grasp: ca.SX | None = None
-    targets: list[FloatArray] = []
+    targets: list[FloatArray | None] = []  # None: the keyframe follows from the previous one
     labels: list[str] = []  # one per constraint row, for the failure reason
     tilts: list[ca.SX] = []  # 1 + a_z of each grasp: a vertical hand carries objects most safely
     rng = np.random.default_rng(seed)
     for k, a in enumerate(actions):
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k])
+        if a.name in ("open_drawer", "close_drawer"):
+            if knob != a.obj:
+                raise RlgpError(f"keyframe NLP: {a} without holding the knob of {a.obj} (holding {knob})")
+            new = drawers[a.obj].travel if a.name == "open_drawer" else 0.0
+            n0 = len(rows.g)
+            follow_prismatic(Z[:, k], Z[:, k - 1], drawers[a.obj].axis_world, new - openings[a.obj], rows)
+            labels += [f"{a} follows the drawer"] * (len(rows.g) - n0)
+            openings[a.obj], knob = new, None
+            targets.append(None)
+        at_knob = a.name in DRAWER_ACTIONS
         still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
+        drawer_bx = [b for c, v in drawers.items() if not (at_knob and c == a.obj) for b in v.boxes(openings[c])]
         n0 = len(rows.g)
-        box_clear(rs, fixture_bx + [b.__class__(b.name, b.size, poses[b.name], b.color) for b in still], rows)
+        still_bx = [replace(b, T=poses[b.name]) for b in still]
+        box_clear(rs, fixture_bx + drawer_bx + still_bx, rows, margin=ARM_MARGIN)
+        self_clear(model, rs.q, list(self_spheres), list(body), rows)
+        if hand:
+            finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
+            points_clear(rs.T_tool, list(hand), fixture_bx + finger_bx + still_bx, rows)
         labels += [f"{a} clearance"] * (len(rows.g) - n0)
         n0 = len(rows.g)
-        footprint_clear(rs, fixture_rects, rows, margin=0.01)
+        open_rects = [(v.T_world_drawer(openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
+                      for c, v in drawers.items() if openings[c] > 0.0]
+        footprint_clear(rs, fixture_rects + open_rects, rows, margin=BASE_MARGIN)
         labels += [f"{a} base footprint"] * (len(rows.g) - n0)
+        opening_at.append(dict(openings))
         n0 = len(rows.g)
-        o = objs[a.obj]
-        if a.name == "pick":
-            if held is not None:
-                raise RlgpError(f"keyframe NLP: {a} while holding {held}")
-            tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
+        if a.name == "take_knob":
+            if held is not None or knob is not None:
+                raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
+            T_knob = drawers[a.obj].T_world_knob(openings[a.obj])
+            knob_grasp(rs, T_knob, rows)
+            knob = a.obj
+            targets.append(T_knob[:3, 3])
+        elif a.name == "pick":
+            if held is not None or knob is not None:
+                raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
+            o = objs[a.obj]
+            grasp_fn = grasp_top_round if o.shape == "cylinder" else grasp_top
+            tilts.append(grasp_fn(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held = a.obj
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
-        else:
+        elif a.name in ("place", "drop"):
             if held != a.obj or grasp is None or a.target is None:
                 raise RlgpError(f"keyframe NLP: {a} without holding {a.obj} (holding {held})")
+            o = objs[a.obj]
             T_obj = rs.T_tool @ grasp
-            T_tgt, half, z_surf = _target_surface(scene, a.target)
-            margin = max(o.size[0], o.size[1]) / 2
-            inside_rectangle(T_obj[:2, 3], T_tgt, (max(half[0] - margin, 0.0), max(half[1] - margin, 0.0)), rows)
-            rows.add(T_obj[2, 3] - (z_surf + o.size[2] / 2 + PLACE_LIFT), 0.0, 0.0)
-            rows.add(T_obj[2, 2], 0.999, 1.0)  # upright
+            if a.name == "place":
+                T_tgt, half, z_surf = _target_surface(scene, a.target)
+                margin = max(o.size[0], o.size[1]) / 2
+                inside_rectangle(T_obj[:2, 3], T_tgt, (max(half[0] - margin, 0.0), max(half[1] - margin, 0.0)), rows)
+                rows.add(T_obj[2, 3] - (z_surf + o.size[2] / 2 + PLACE_LIFT), 0.0, 0.0)
+                rows.add(T_obj[2, 2], 0.999, 1.0)  # upright
+                targets.append(T_tgt[:3, 3] + np.array([0.0, 0.0, o.size[2]]))
+            else:
+                v = drawers[a.target]
+                if openings[a.target] <= 0.0:
+                    raise RlgpError(f"keyframe NLP: {a} into a closed drawer")
+                T_rect, half = v.drop_rect(openings[a.target], max(o.size[0], o.size[1]) / 2)
+                rim = v.rim_z(openings[a.target])
+                drop_above(T_obj, T_rect, half, o.size, rim + DROP_LOW, rim + DROP_HIGH, rows)
+                targets.append(T_rect[:3, 3] + np.array([0.0, 0.0, rim - T_rect[2, 3] + DROP_LOW + o.size[2]]))
+            r_o = float(np.hypot(o.size[0], o.size[1])) / 2
+            for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
+                rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + DROP_GAP) ** 2, ca.inf)
+            set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             moved.add(a.obj)
             held, grasp = None, None
-            targets.append(T_tgt[:3, 3] + np.array([0.0, 0.0, o.size[2]]))
-        labels += [f"{a} {'grasp' if a.name == 'pick' else 'placement'}"] * (len(rows.g) - n0)
+        if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
+            rows.add(Z[3, k], -ca.inf, float(ik.hi[3]) - lift_room)
+        labels += [f"{a} {KIND[a.name]}"] * (len(rows.g) - n0)
     z0 = ca.DM(ik.z_of(q_start))
     cost = 0
     prev = z0
@@ -168,22 +261,41 @@ def solve_keyframes(
     lbx = np.tile(ik.lo, K)
     ubx = np.tile(ik.hi, K)
     best = None
+    keep: dict[int, FloatArray] = {}  # keyframes of a rejected solution that PyBullet accepted
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
-        init = []
-        for x in targets:
+        init: list[FloatArray] = []
+        for k, x in enumerate(targets):
+            if k in keep:
+                init.append(keep[k])
+                continue
+            if x is None:  # follows the drawer: the previous keyframe, the base shifted along the axis
+                a = actions[k]
+                z = init[-1].copy()
+                moved_m = opening_at[k][a.obj] - opening_at[k - 1][a.obj]
+                z[:2] += moved_m * drawers[a.obj].axis_world[:2]
+                init.append(z)
+                continue
             yaw = rng.uniform(-math.pi, math.pi)
             r = ik.solve(x, ik.guess(x, yaw))
-            init.append(ik.z_of(r.q) if r.ok else ik.guess(x, yaw))
+            z = ik.z_of(r.q) if r.ok else ik.guess(x, yaw)
+            if _attempt % 2 == 1:  # the grasp's roll: a quarter turn of the wrist on every other start
+                z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
+            init.append(z)
         res = solver(x0=np.concatenate(init), lbx=lbx, ubx=ubx, lbg=rows.lower, ubg=rows.upper)
+        restarted, keep = bool(keep), {}  # a partial restart is tried once, then a fresh start
         g = np.asarray(res["g"]).reshape(-1)
         viol = float(np.max(np.r_[np.asarray(rows.lower) - g, g - np.asarray(rows.upper), 0.0]))
         over = np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))
         worst = labels[int(np.argmax(over))] if g.size else ""
         if viol <= FEAS_TOL and in_collision is not None:
             zk = np.asarray(ca.reshape(res["x"], n, K)).T
-            bad = [k for k in range(K) if in_collision(ik.q_of(zk[k]))]
-            if bad:  # feasible for the NLP, not for the robot: try another start
+            bad = [k for k in range(K) if in_collision(ik.q_of(zk[k]), opening_at[k], actions[k])]
+            if bad:  # feasible for the NLP, not for the robot: restart the rejected keyframes
                 viol, worst = 1.0, f"{actions[bad[0]]} keyframe collides in PyBullet (self or world)"
+                if not restarted:
+                    keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
+        status = solver.stats()["return_status"]
+        log.debug("keyframes attempt %d: violation %.2e (%s) %s", _attempt, viol, worst, status)
         cand = (viol, float(res["f"]), np.asarray(res["x"]).reshape(-1), worst)
         if best is None or (cand[0] < best[0] - 1e-9) or (cand[0] <= FEAS_TOL and cand[1] < best[1]):
             best = cand
@@ -193,19 +305,15 @@ def solve_keyframes(
     zs = np.asarray(ca.reshape(ca.DM(zflat), n, K)).T  # ca.vec is column-major: column k is keyframe k
     keyframes = np.array([ik.q_of(z) for z in zs])
     # object poses after each action, evaluated numerically
-    out_poses, cur, held_T = [], {k2: v.copy() for k2, v in poses.items()}, None
-    for k, a in enumerate(actions):
-        T_tool = model.fk(keyframes[k], ik.tool)
-        if a.name == "pick":
-            held_T = np.linalg.inv(T_tool) @ cur[a.obj]
-        else:
-            cur[a.obj] = T_tool @ held_T
-        out_poses.append({k2: v.copy() for k2, v in cur.items()})
+    out_poses = object_poses_after(
+        actions, keyframes, poses, opening_at, drawers, model, ik.tool, {m: o.size for m, o in objs.items()}
+    )
     ok = viol <= FEAS_TOL
     return KeyframeResult(
         ok,
         keyframes,
         tuple(out_poses),
+        tuple(opening_at),
         f,
         viol,
         (time.perf_counter() - t0) * 1e3,

@@ -1,0 +1,64 @@
+"""Goal pre-checks for the R-LGP loop: an invalid goal is named at once; a goal object that no keyframe
+solution can grasp where it stands, or set down on its target, makes the task infeasible.
+
+The geometric check runs after the first candidate fails at the geometric levels (a plan that works
+pays nothing for it). It is a relaxation of every grasp and placement: for each goal object not yet
+where the goal wants it, can the tool reach the object's top at all (position IK, no orientation), and
+for an ``on`` goal, the point above the target's centre? No, from eight base headings: infeasible (up to
+the IK's local solver, which the reason names).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from rlgp_exec.planning.nlp.keyframes import _target_surface
+from rlgp_exec.planning.symbolic.model import GroundProblem
+from rlgp_exec.reach.ik import ReachIK
+from rlgp_exec.robot.config import load_robot_config
+from rlgp_exec.scene import Scene
+
+__all__ = ["goal_manipulator", "unreachable_goal"]
+
+log = logging.getLogger(__name__)
+
+
+def goal_manipulator(scene: Scene) -> str:
+    """The manipulator the planners use (the robot's first)."""
+    return load_robot_config(scene.robot.name).manipulators[0].name
+
+
+def _reachable(ik: ReachIK, x: np.ndarray, starts: int = 8) -> bool:
+    """Can the tool reach the point x (3,) [m] at all: position IK (Eq. 2: no orientation; the base only
+    kept off the fixtures' footprints, the arm spheres out of them, as every keyframe must) from
+    ``starts`` base headings. No PyBullet check: an IK answer's arbitrary hand would hit what a real
+    grasp avoids, and a relaxation must not reject what the keyframe NLP could solve."""
+    return any(ik.solve(x, ik.guess(x, 2 * math.pi * k / starts)).ok for k in range(starts))
+
+
+def unreachable_goal(geo, problem: GroundProblem) -> str | None:
+    """Why the goal is infeasible (a goal object the hand cannot reach, or a target it cannot reach
+    holding it), or None."""
+    scene = geo.scene
+    ik = ReachIK(geo.model, scene, geo.q0, clearance=0.0)  # no base margin: looser than any keyframe
+    for atom in sorted(problem.goal - problem.init):
+        if atom[0] not in ("on", "in"):
+            continue
+        o = scene.object(atom[1])
+        top = np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2])
+        if not _reachable(ik, top):
+            return f"infeasible: {o.name} cannot be reached where it is (no position IK reaches {top.round(3)} m)"
+        if atom[0] == "on" and atom[2] not in problem_objects(scene):
+            T, _, z = _target_surface(scene, atom[2])
+            above = np.array([T[0, 3], T[1, 3], z + o.size[2]])
+            if not _reachable(ik, above):
+                where = f"no position IK reaches {above.round(3)} m"
+                return f"infeasible: {atom[2]} cannot be reached to set {o.name} on it ({where})"
+    return None
+
+
+def problem_objects(scene: Scene) -> set[str]:
+    return {o.name for o in scene.objects}

@@ -1,0 +1,164 @@
+"""The open hand in the keyframe NLP: spheres along the fingers, fixed in the tool frame.
+
+The arm spheres of ``nlp.factors`` stop at the tool point; an open gripper reaches further sideways
+(the HSR's open fingers span about 25 cm), which is what hits a wall next to an object or the carcass
+above a knob. :func:`finger_spheres` reads the finger links' box collision shapes in PyBullet at the
+nominal configuration (the hand open) and puts three spheres along each box's long axis, in the tool
+frame; :func:`points_clear` keeps them clear of boxes. Links whose shapes are meshes get none (their
+hull is not a box), so for them the NLP stays as it was and the PyBullet check decides.
+
+Self-collision proxy (:func:`self_clear`): spheres on the arm kept clear of the link the arm is mounted
+on (the HSR's base cylinder: a low, level arm otherwise rests on it; the PR2's torso: the upper arm
+otherwise swings into it).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import casadi as ca
+import numpy as np
+import pybullet as p
+
+from rlgp_exec.planning.nlp.factors import Rows
+from rlgp_exec.reach.ik import arm_spheres, box_sdf
+from rlgp_exec.robot.model import FloatArray
+from rlgp_exec.robot.pybullet_body import pose_to_matrix
+from rlgp_exec.scene.geometry import Box
+
+__all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear", "self_clear"]
+
+SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
+SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
+
+
+def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
+    """(centre in the tool frame (3,) [m], radius [m]) spheres on the finger links' box shapes at ``q``."""
+    manip = model.manipulator()
+    robot.set_q(q)
+    T_tool = model.fk(q, manip.tool_frame)
+    out: list[tuple[FloatArray, float]] = []
+    for name in manip.links:
+        if "finger" not in name:
+            continue
+        i = robot.link_index[name]
+        st = p.getLinkState(robot.id, i, computeForwardKinematics=True, physicsClientId=robot.client)
+        T_com = pose_to_matrix(st[0], st[1])
+        for d in p.getCollisionShapeData(robot.id, i, physicsClientId=robot.client):
+            if d[2] != p.GEOM_BOX:
+                continue
+            size = np.asarray(d[3], float)
+            T_shape = T_com @ pose_to_matrix(d[5], d[6])
+            long = int(np.argmax(size))
+            r = float(np.sort(size)[1]) / 2
+            for s in (-0.5, 0.0, 0.5):
+                local = np.zeros(3)
+                local[long] = s * (size[long] - 2 * r)
+                pw = T_shape @ np.r_[local, 1.0]
+                out.append((np.linalg.solve(T_tool, pw)[:3], r))
+    return out
+
+
+def points_clear(T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], boxes: list[Box], rows: Rows) -> None:
+    """Every sphere (tool frame) at least its radius from every box."""
+    for b in boxes:
+        Tinv = np.linalg.inv(b.T)
+        half = np.asarray(b.size) / 2
+        for c, r in spheres:
+            pw = T_tool[:3, :3] @ ca.DM(c) + T_tool[:3, 3]
+            pl = ca.DM(Tinv[:3, :3]) @ pw + ca.DM(Tinv[:3, 3])
+            rows.add(box_sdf(pl, half), r, ca.inf)
+
+
+def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
+    """link -> [(T_link_cylinder (4, 4), radius, length)] from the URDF's collision cylinders."""
+    import xml.etree.ElementTree as ET
+
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.robot.urdf import prepare_urdf
+
+    root = ET.fromstring(prepare_urdf(model.config).pinocchio_xml)
+    out: dict[str, list[tuple[FloatArray, float, float]]] = {}
+    for link in root.findall("link"):
+        for col in link.findall("collision"):
+            cyl = col.find("geometry/cylinder")
+            if cyl is None:
+                continue
+            o = col.find("origin")
+            xyz = [float(v) for v in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()]
+            rpy = [float(v) for v in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()]
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+            T[:3, 3] = xyz
+            r, length = float(cyl.get("radius", "0")), float(cyl.get("length", "0"))
+            out.setdefault(str(link.get("name")), []).append((T, r, length))
+    return out
+
+
+def arm_link_spheres(model, manipulator: str | None = None) -> list[tuple[str, FloatArray, float]]:
+    """(frame, centre in that frame (3,), radius [m]) spheres on the arm for the self-clearance rows: on
+    the arm links' collision cylinders (three per cylinder, on its axis; the first joint's link, which
+    rides the body, excluded), else (mesh arms: PR2) the arm spheres from the elbow on."""
+    m = model.manipulator(manipulator)
+    cyl = _urdf_cylinders(model)
+    out: list[tuple[str, FloatArray, float]] = []
+    joints = [model.joint_names[i] for i in model.group(m.group)]
+    for j in joints[1:]:
+        link = j.removesuffix("_joint") + "_link"
+        for T, r, length in cyl.get(link, []):
+            for s in (-0.5, 0.0, 0.5):
+                out.append((link, (T @ np.r_[0.0, 0.0, s * max(length - 2 * r, 0.0), 1.0])[:3], r))
+    if not out:  # mesh arms: spheres along each segment between consecutive joint frames, and the joints
+        q = model.home()
+        frames = list(dict.fromkeys(f for f, _ in arm_spheres(model, manipulator)))
+        for f, g in itertools.pairwise(frames):
+            rel = np.linalg.solve(model.fk(q, f), np.r_[model.fk(q, g)[:3, 3], 1.0])[:3]  # g's origin in f
+            if np.linalg.norm(rel) > 0.05:
+                out += [(f, s * rel, SEGMENT_RADIUS) for s in (0.0, 0.35, 0.65)]
+        out += [(f, np.zeros(3), r) for f, r in arm_spheres(model, manipulator)[2:]]
+    return out
+
+
+def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) -> list[tuple[str, Box]]:
+    """(frame, box in that frame) of the link the arm is mounted on: its collision cylinders from the URDF
+    (the HSR's base; a box beside them is the column the arm rides along, left out), else its PyBullet
+    bounding box at ``q`` (a mesh: the PR2's torso)."""
+    m = model.manipulator(manipulator)
+    first = robot.joint_index[model.joint_names[model.group(m.group)[0]]]
+    parent = robot.link_name.get(p.getJointInfo(robot.id, first, physicsClientId=robot.client)[16], "base_link")
+    cyl = _urdf_cylinders(model).get(parent, [])
+    if cyl:
+        return [(parent, Box("body", (2 * r, 2 * r, length), T, (0.0, 0.0, 0.0, 1.0))) for T, r, length in cyl]
+    robot.set_q(q)
+    lo, hi = (np.asarray(v, float) for v in p.getAABB(robot.id, robot.link_index[parent], physicsClientId=robot.client))
+    T_link = model.fk(q, parent)
+    corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
+                        for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    lo_l, hi_l = corners.min(axis=0), corners.max(axis=0)
+    # the shoulders are mounted on the box's front: keep only what lies SHOULDER_SETBACK behind them
+    shoulder = np.linalg.solve(T_link, np.r_[model.fk(q, model.joint_names[model.group(m.group)[0]])[:3, 3], 1.0])
+    hi_l[0] = min(hi_l[0], float(shoulder[0]) - SHOULDER_SETBACK)
+    T = np.eye(4)
+    T[:3, 3] = (lo_l + hi_l) / 2
+    size = hi_l - lo_l
+    extents = (float(size[0]), float(size[1]), float(size[2]))
+    return [(parent, Box("body", extents, T, (0.0, 0.0, 0.0, 1.0)))]
+
+
+def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],
+               rows: Rows, margin: float = 0.01) -> None:
+    """The arm's spheres clear of the body's boxes (each box in its link's frame)."""
+    if not spheres or not body:
+        return
+    frames = tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
+    Ts = model.casadi_fk(frames)(q_sym)
+    Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
+    for f, c, r in spheres:
+        pw = Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3]
+        for bf, b in body:
+            T_b = Ts[bf]
+            pb = T_b[:3, :3].T @ (pw - T_b[:3, 3])
+            Tinv = np.linalg.inv(b.T)
+            pl = ca.DM(Tinv[:3, :3]) @ pb + ca.DM(Tinv[:3, 3])
+            rows.add(box_sdf(pl, np.asarray(b.size) / 2), r + margin, ca.inf)
