@@ -44,7 +44,7 @@ def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -
             wall = time.perf_counter() - t0
             runs.append({**result.summary(), "seed": seed, "wall_s": wall})
             print(
-                f"  seed {seed:3d} {name:5s} {'ok  ' if result.success else 'FAIL'} {result.planning_time_s:7.2f} s "
+                f"  seed {seed:3d} {name:9s} {'ok  ' if result.success else 'FAIL'} {result.planning_time_s:7.2f} s "
                 f"{result.reason[:100] if not result.success else ''}",
                 file=sys.stderr,
             )
@@ -61,6 +61,17 @@ def run_planner_bench(scene_path: str | Path, planners: list[str], seeds: int) -
             "steps_median": _median([r["n_steps"] for r in ok]),
             "n_nlp_median": _median([r["n_nlp"] for r in ok]),
         }
+        counted = [r["counters"] for r in rs if r.get("counters")]
+        if counted:  # planner-specific counters (GNPP: Table I's N0, N, NLPs), medians over the runs
+            ok_counted = [r["counters"] for r in ok if r.get("counters")]
+            summary[name].update(
+                {
+                    "n0_median": _median([c["n0"] for c in counted if c.get("n0") is not None]),
+                    "n_median": _median([c["n"] for c in ok_counted if c.get("n") is not None]),
+                    "nlp_median_all_runs": _median([c["nlp"] for c in counted if "nlp" in c]),
+                    "conflicts_median": _median([c["conflicts"] for c in counted if "conflicts" in c]),
+                }
+            )
     return {
         "task": base.name,
         "seeds": seeds,

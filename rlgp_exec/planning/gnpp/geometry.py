@@ -25,7 +25,7 @@ from rlgp_exec.reach import nominal_q
 from rlgp_exec.reach.ik import box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import fixture_boxes
+from rlgp_exec.scene.geometry import Box, fixture_boxes
 
 __all__ = ["GRASP_DEPTH", "MAX_TILT", "PLACE_LIFT", "T_TOOL_UPRIGHT", "FactorFn", "FactorLib"]
 
@@ -35,6 +35,7 @@ PLACE_LIFT = 0.003  # [m] an object is released this far above its support
 GRASP_DEPTH = 0.025  # [m] the tool point below an object's top (at most half its height)
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
+PAN_CROSS_MAX = 0.3  # [rad] (PR2) shoulder pan towards the other arm's side at most
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 #: object frame in the tool frame for an upright object held from above (tool x = approach = down)
 T_TOOL_UPRIGHT = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -73,6 +74,20 @@ class FactorLib:
         self._fns: dict[tuple, FactorFn] = {}
         self._arm: dict[str, tuple] = {}
         self.fixture_boxes = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
+        self.body_boxes = self._body_boxes()
+
+    def _body_boxes(self) -> list[Box]:
+        """The robot's own trunk as boxes (world frame) that its arms must clear (PR2: the torso,
+        from its collision hull's bounding box in the base frame [m])."""
+        if self.model.config.name != "pr2":
+            return []
+        x, y, yaw = self.q_nominal[:3]
+        lift = self.q_nominal[self.model.index("torso_lift_joint")]
+        T = np.eye(4)
+        T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+        centre = np.array([-0.15, 0.0, 0.69 + lift])  # base frame: x forward
+        T[:3, 3] = np.array([x, y, 0.0]) + T[:3, :3] @ centre
+        return [Box("torso", (0.36, 0.5, 0.8), T, (0.5, 0.5, 0.5, 1.0))]
 
     # ----------------------------------------------------------------- variables
     def arm_index(self, arm: str) -> FloatArray:
@@ -84,7 +99,8 @@ class FactorLib:
             lo = np.maximum(self.model.limits.lower[idx], -2 * math.pi)
             hi = np.minimum(self.model.limits.upper[idx], 2 * math.pi)
             return lo, hi
-        return np.array([-3.0, -3.0, -1.0, -4 * math.pi]), np.array([3.0, 3.0, 3.0, 4 * math.pi])
+        # an object's x is a world pose [x, y, z, yaw] or a held pose [d, s, psi, theta]: bounds for both
+        return np.array([-3.0, -3.0, -4 * math.pi, -4 * math.pi]), np.array([3.0, 3.0, 4 * math.pi, 4 * math.pi])
 
     def home_q(self, arm: str) -> FloatArray:
         return self.q_nominal[self.arm_index(arm)].copy()
@@ -111,8 +127,8 @@ class FactorLib:
     # ----------------------------------------------------------------- the arm's shapes
     def arm_shapes(self, arm: str) -> tuple[ca.Function, list[float], int]:
         """(q (7,) -> (points (3, K) world, T_tool), radii, n_body): elbow, forearm, wrist, hand, two
-        fingers (the first ``n_body`` collide with objects and fixtures), then the upper arm and the
-        tool point (arm against arm only)."""
+        fingers, the upper arm (the first ``n_body``: against objects and fixtures too), then the tool
+        point (arm against arm only)."""
         if arm not in self._arm:
             man = self.model.manipulator(arm)
             names = [self.model.joint_names[i] for i in self.model.group(man.group)]
@@ -130,7 +146,7 @@ class FactorLib:
             pts += [0.5 * (ps + pe), pt]
             radii = [0.07, 0.06, 0.06, 0.045, 0.012, 0.012, 0.08, 0.035]
             fn = ca.Function(f"shapes_{arm}", [q7], [ca.horzcat(*pts), Tt])
-            self._arm[arm] = (fn, radii, 6)
+            self._arm[arm] = (fn, radii, 7)
         return self._arm[arm]
 
     # ----------------------------------------------------------------- factor functions
@@ -216,9 +232,17 @@ class FactorLib:
         for k, n in enumerate(names):
             if "wrist_flex" in n:
                 rows.add(q[k], WRIST_FLEX_MIN, ca.inf)
+            if "shoulder_pan" in n:  # an arm crossing to the far side hits the torso with its upper arm
+                side = -1.0 if n.startswith("r_") else 1.0
+                rows.add(side * q[k], -PAN_CROSS_MAX, ca.inf)
         for b in self.fixture_boxes:
             Tinv = np.linalg.inv(b.T)
             for k in range(nb):
+                pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
+                rows.add(box_sdf(pl, np.asarray(b.size) / 2), radii[k], ca.inf)
+        for b in self.body_boxes:  # the elbow, forearm, wrist and hand clear of the trunk
+            Tinv = np.linalg.inv(b.T)
+            for k in range(4):
                 pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
                 rows.add(box_sdf(pl, np.asarray(b.size) / 2), radii[k], ca.inf)
         return [q], rows

@@ -5,12 +5,13 @@ reasonable point."""
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 
 import casadi as ca
 import numpy as np
 
-from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, T_TOOL_UPRIGHT, FactorLib
 from rlgp_exec.planning.gnpp.pntc import Var, parents
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
@@ -18,6 +19,7 @@ from rlgp_exec.robot.model import FloatArray
 __all__ = ["TopIK", "initial_guess"]
 
 log = logging.getLogger(__name__)
+RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
 
 
 class TopIK:
@@ -48,18 +50,40 @@ class TopIK:
         return self._solvers[arm]
 
     def solve(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
+        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it."""
         key = (arm, *np.round(pos, 3), *np.round(q_ref, 2))
         if key in self._memo:
             return self._memo[key]
         s, lbg, ubg = self._solver(arm)
         lo, hi = self.lib.var_bounds("q", arm)
-        res = s(x0=np.clip(q_ref, lo, hi), p=np.r_[pos, q_ref], lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
-        self.n_solves += 1
-        q = np.asarray(res["x"]).reshape(-1)
-        err = np.linalg.norm(self.lib.tool_T(arm, q)[:3, 3] - pos)
-        out = (bool(err < 2e-3), q)
+        rng = np.random.default_rng(7)
+        home = self.lib.home_q(arm)
+        starts = [q_ref, home] + [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
+        out = (False, np.asarray(q_ref, float))
+        for q0 in starts:
+            res = s(x0=np.clip(q0, lo, hi), p=np.r_[pos, q_ref], lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
+            self.n_solves += 1
+            q = np.asarray(res["x"]).reshape(-1)
+            g = np.asarray(res["g"]).reshape(-1)
+            err = np.linalg.norm(self.lib.tool_T(arm, q)[:3, 3] - pos)
+            if err < 2e-3 and np.all(g >= lbg - 1e-4) and np.all(g <= ubg + 1e-4):
+                out = (True, q)
+                break
         self._memo[key] = out
         return out
+
+
+def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatArray:
+    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q7."""
+    R = (np.linalg.inv(lib.tool_T(arm, q7)) @ lib.object_T(w))[:3]
+    z = R[:3, 2]
+    theta = math.atan2(z[2], -z[0])
+    ct, st = math.cos(theta), math.sin(theta)
+    Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
+    M = T_TOOL_UPRIGHT.T @ Ry.T @ R[:3, :3]
+    psi = math.atan2(M[1, 0], M[0, 0])
+    p = R[:3, 3]
+    return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
 def initial_guess(
@@ -71,6 +95,7 @@ def initial_guess(
     q: dict[str, FloatArray] = {m: lib.home_q(m) for m in arms}
     out: dict[Var, FloatArray] = {}
     prev: dict[str, str] = parents(states[0])
+    held: dict[str, FloatArray] = {}
     for t, s in enumerate(states):
         par = parents(s)
         for o in sorted(par):
@@ -80,7 +105,8 @@ def initial_guess(
                     h = lib.objects[o].size[2]
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
                     q[p] = ik.solve(p, top, q[p])[1]
-                out[Var("x", o, t)] = lib.held_pose(o)
+                    held[o] = _held_of(lib, p, q[p], world[o])
+                out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
                 continue
             if prev.get(o) != p:  # placed now
                 h = lib.objects[o].size[2]

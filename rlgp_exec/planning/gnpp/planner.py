@@ -106,8 +106,8 @@ def _logic_plan(
 def plan_gnpp(
     scene: Scene,
     variant: str = "gnpp_trn",
-    logic: Logic = Logic.FAST_DOWNWARD,
-    timeout_s: float = 100.0,
+    logic: Logic = Logic.INTERNAL,
+    timeout_s: float = 60.0,
     max_iterations: int = 300,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``)."""
@@ -123,6 +123,9 @@ def plan_gnpp(
     objects = [o.name for o in scene.objects]
     forbidden: list[ForbiddenSequence] = []
     found: list[Conflict] = []
+    guesses: list[dict] = []  # the start each conflict was found from
+    conflict_seqs: list[ForbiddenSequence] = []
+    verified = False
     n0, logic_s, blocked_plans = None, 0.0, 0
     reasons: list[str] = []
 
@@ -161,6 +164,22 @@ def plan_gnpp(
         tl = time.perf_counter()
         actions, status, why = _logic_plan(task, forbidden, logic, left)
         logic_s += time.perf_counter() - tl
+        if actions is None and status is GnppStatus.INFEASIBLE and found and not verified:
+            # the proof rests on the conflicts: each must withstand a few more starts of the (local) solver
+            verified = True
+            keep = [k for k, c in enumerate(found) if not solver.refute(c.factors, guesses[k])]
+            if len(keep) < len(found):
+                log.info("%s: %d conflicts refuted by other starts", variant, len(found) - len(keep))
+                n_conf = len(found)
+                found[:] = [found[k] for k in keep]
+                guesses[:] = [guesses[k] for k in keep]
+                # forbidden = conflicts (in order) interleaved with blocked plans: rebuild from both
+                forbidden[:] = [f for f in forbidden if f not in conflict_seqs[:n_conf]] + [
+                    to_forbidden(c.factors) for c in found
+                ]
+                conflict_seqs[:] = [to_forbidden(c.factors) for c in found]
+                verified = False
+                continue
         if actions is None:
             assert status is not None
             proof = f" ({len(forbidden)} learnt conflicts prove it)" if status is GnppStatus.INFEASIBLE else ""
@@ -186,7 +205,9 @@ def plan_gnpp(
             conflict, values = find_conflict(check, graph, opts)
         if conflict is not None:
             found.append(conflict)
-            forbidden.append(to_forbidden(conflict.factors))
+            guesses.append(dict(check.guess))
+            conflict_seqs.append(to_forbidden(conflict.factors))
+            forbidden.append(conflict_seqs[-1])
             log.info("%s iteration %d: %s", variant, it, forbidden[-1])
             continue
         laid = phases_of(lib, ik, actions, values)

@@ -34,10 +34,16 @@ IPOPT = {
     "ipopt.sb": "yes",
     "ipopt.max_iter": 100,
     "ipopt.tol": 1e-6,
-    "ipopt.acceptable_tol": 1e-4,
     "ipopt.constr_viol_tol": 1e-5,
+    # feasibility is all that is asked: stop at the first iterate that satisfies the constraints
+    "ipopt.acceptable_iter": 1,
+    "ipopt.acceptable_tol": 1e20,
+    "ipopt.acceptable_constr_viol_tol": 1e-5,
+    "ipopt.acceptable_dual_inf_tol": 1e20,
+    "ipopt.acceptable_compl_inf_tol": 1e20,
+    "ipopt.acceptable_obj_change_tol": 1e20,
     "ipopt.max_cpu_time": 1.5,
-    "expand": True,
+    "ipopt.hessian_approximation": "limited-memory",
 }
 
 
@@ -68,13 +74,16 @@ class _Built:
 
 
 class GraphSolver:
-    """Solves subgraphs of one scene's graph-NLPs; ``n_solves`` counts the NLPs actually solved."""
+    """Solves subgraphs of one scene's graph-NLPs; ``n_solves`` counts the NLPs solved (a subgraph found
+    infeasible from the given start is solved ``restarts`` more times, from the arms' start postures:
+    the solver is local, and a false "infeasible" would forbid feasible plans)."""
 
-    def __init__(self, lib: FactorLib) -> None:
-        self.lib = lib
+    def __init__(self, lib: FactorLib, restarts: int = 1) -> None:
+        self.lib, self.restarts = lib, restarts
         self.n_solves = 0
         self.solve_time_s = 0.0
         self._cache: dict[tuple, _Built] = {}
+        self.iters: list[int] = []  # IPOPT iterations per solve
 
     @staticmethod
     def _structure(factors: Sequence[Factor], order: list[Var]) -> tuple:
@@ -101,6 +110,19 @@ class GraphSolver:
         solver = ca.nlpsol("graph_nlp", "ipopt", nlp, IPOPT)
         return _Built(solver, ca.Function("g", [x], [g]), np.concatenate(lo), np.concatenate(hi), rows)
 
+    def refute(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = 4, seed: int = 0) -> bool:
+        """True if the subgraph is feasible from one of ``tries`` seeded random starts (arms perturbed
+        about their start postures): a check of a conflict before it is used as a proof."""
+        rng = np.random.default_rng(seed)
+        for _ in range(tries):
+            start = {
+                v: (self.lib.home_q(v.owner) + rng.normal(0.0, 0.5, 7)) if v.kind == "q" else guess[v]
+                for v in variables(factors)
+            }
+            if self.solve(factors, start).feasible:
+                return True
+        return False
+
     def solve(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]) -> SolveResult:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
         t0 = time.perf_counter()
@@ -109,17 +131,23 @@ class GraphSolver:
         built = self._cache.get(key)
         if built is None:
             built = self._cache[key] = self._build(factors, order)
-        x0 = np.concatenate([guess[v] for v in order])
         bounds = [self.lib.var_bounds(v.kind, v.owner) for v in order]
         lbx = np.concatenate([b[0] for b in bounds])
         ubx = np.concatenate([b[1] for b in bounds])
-        x0 = np.clip(x0, lbx, ubx)
-        res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
-        xs = np.asarray(res["x"]).reshape(-1)
-        g = np.asarray(built.g_fn(xs)).reshape(-1)
-        over = np.maximum(np.maximum(built.lbg - g, g - built.ubg), 0.0)
-        over[~np.isfinite(g)] = np.inf
-        viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
+        starts = [np.concatenate([guess[v] for v in order])]
+        if any(v.kind == "q" for v in order):  # a second start: every arm at its start posture
+            starts.append(np.concatenate([self.lib.home_q(v.owner) if v.kind == "q" else guess[v] for v in order]))
+        for x0 in starts[: 1 + self.restarts]:
+            x0 = np.clip(x0, lbx, ubx)
+            res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+            self.iters.append(int(built.solver.stats()["iter_count"]))
+            xs = np.asarray(res["x"]).reshape(-1)
+            g = np.asarray(built.g_fn(xs)).reshape(-1)
+            over = np.maximum(np.maximum(built.lbg - g, g - built.ubg), 0.0)
+            over[~np.isfinite(g)] = np.inf
+            viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
+            if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
+                break
         values, k = {}, 0
         for v in order:
             d = 7 if v.kind == "q" else 4
