@@ -35,7 +35,7 @@ PLACE_LIFT = 0.003  # [m] an object is released this far above its support
 GRASP_DEPTH = 0.025  # [m] the tool point below an object's top (at most half its height)
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
-PAN_CROSS_MAX = 0.3  # [rad] (PR2) shoulder pan towards the other arm's side at most
+PAN_CROSS_MAX = 0.1  # [rad] (PR2) shoulder pan towards the other arm's side at most
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 #: object frame in the tool frame for an upright object held from above (tool x = approach = down)
 T_TOOL_UPRIGHT = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -260,12 +260,21 @@ class FactorLib:
         points_apart([Pa[:, k] for k in ia], [ra[k] for k in ia], [Pb[:, k] for k in ib], [rb[k] for k in ib], rows)
         return [qa, qb], rows
 
-    def _f_ColAO(self, arm: str, obj: str):
-        fn, radii, nb = self.arm_shapes(arm)
+    def _arm_object(self, arm: str, obj: str, points: tuple[int, ...]):
+        fn, radii, _ = self.arm_shapes(arm)
         q, w, rows = ca.SX.sym("q", len(self.arm_index(arm))), ca.SX.sym("w", 4), Rows.empty()
         P = fn(q)[0]
-        points_box_clear([P[:, k] for k in range(nb)], radii[:nb], w, np.asarray(self.objects[obj].size) / 2, rows)
+        half = np.asarray(self.objects[obj].size) / 2
+        points_box_clear([P[:, k] for k in points], [radii[k] for k in points], w, half, rows)
         return [q, w], rows
+
+    def _f_ColAO(self, arm: str, obj: str):
+        """The arm (upper arm, elbow, forearm, wrist) clear of a resting object."""
+        return self._arm_object(arm, obj, (0, 1, 2, 6))
+
+    def _f_ColHO(self, arm: str, obj: str):
+        """The hand and fingers clear of a resting object (not the one the hand has just let go)."""
+        return self._arm_object(arm, obj, (3, 4, 5))
 
     def _f_ColOO(self, obj_a: str, obj_b: str):
         wa, wb, rows = ca.SX.sym("wa", 4), ca.SX.sym("wb", 4), Rows.empty()
@@ -288,4 +297,4 @@ class FactorLib:
         return np.asarray(ca.Function("yp", [s := ca.SX.sym("w", 4)], [yaw_pose(s)])(w))
 
 
-FACTOR_KINDS = ("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "ColFix", "ColAA", "ColAO", "ColOO")
+FACTOR_KINDS = ("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "ColFix", "ColAA", "ColAO", "ColHO", "ColOO")

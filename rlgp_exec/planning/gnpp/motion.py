@@ -2,8 +2,9 @@
 
 The keyframes are the solved arm configurations at each action. Between them each action is one
 phase of straight joint-space segments: every arm left at a keyframe first lifts its hand
-``LIFT`` straight up (IK, posture kept); an arm that let go of its object then goes back to its start
-posture; the acting arm moves to ``LIFT`` above its keyframe, then down onto it (grasp or release).
+``LIFT`` straight up (IK, posture kept); an arm that let go of its object then returns to its start
+posture; the acting arm moves to ``LIFT`` above its keyframe, then down onto it (grasp or
+release).
 An arm holding an object while the other one works keeps it lifted where it is. This is not the
 paper's 20-waypoint trajectory optimisation: the replay (``validate_plan``) decides.
 """

@@ -23,7 +23,8 @@ On(o,p)    {(holding m o)} -> {(on o p)}           x_{t+1}^o resting on object x
 Equal(o)   parent unchanged t -> t+1               x_t^o = x_{t+1}^o
 ColFix(m)  {not (initial-state)} at t              arm m clear of the fixtures
 ColAA      {not (initial-state)} at t              the two arms clear of each other
-ColAO(m,o) {not (initial-state), not (holding * o)} arm m clear of resting object o
+ColAO(m,o) {not (initial-state), not (holding * o)} arm m (up to the wrist) clear of resting object o
+ColHO(m,o) {not (holding m o)} -> same as ColAO     hand m clear of o, unless it has just let o go
 ColOO(o,p) both resting, not stacked on each other  resting objects clear of each other
 =========  ======================================  ===========================================
 
@@ -43,7 +44,7 @@ from rlgp_exec.planning.symbolic.reformulate import PartialState
 __all__ = ["INITIAL", "Factor", "Var", "add_flags", "factors_of", "parents"]
 
 INITIAL: Atom = ("initial-state",)
-COLLISION = ("ColFix", "ColAA", "ColAO", "ColOO")
+COLLISION = ("ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
 TIME = ("Equal",)
 
 
@@ -128,7 +129,9 @@ def _ps(pos: Sequence[Atom] = (), neg: Sequence[Atom] = ()) -> PartialState:
     return PartialState(frozenset(pos), frozenset(neg))
 
 
-def _state_factors(t: int, s: SymbolicState, arms: list[str], movable: set[str]) -> list[Factor]:
+def _state_factors(
+    t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str]
+) -> list[Factor]:
     out: list[Factor] = []
     par = parents(s)
     if INITIAL in s:
@@ -146,6 +149,9 @@ def _state_factors(t: int, s: SymbolicState, arms: list[str], movable: set[str])
             for o in resting:
                 neg = [INITIAL] + [("holding", a, o) for a in arms]
                 out.append(Factor(("ColAO", m, o), (Var("q", m, t), Var("x", o, t)), ((t, _ps((), neg)),)))
+                if t > 0 and prev is not None and parents(prev).get(o) != m:  # not just let go by m
+                    ps = ((t - 1, _ps((), [("holding", m, o)])), (t, _ps((), neg)))
+                    out.append(Factor(("ColHO", m, o), (Var("q", m, t), Var("x", o, t)), ps))
     for a, b in itertools.combinations(resting, 2):
         if par[a] == b or par[b] == a:
             continue
@@ -187,7 +193,7 @@ def factors_of(states: Sequence[SymbolicState], arms: Sequence[str], objects: Se
     arms_l, movable = list(arms), set(objects)
     out: list[Factor] = []
     for t, s in enumerate(states):
-        out += _state_factors(t, s, arms_l, movable)
+        out += _state_factors(t, s, states[t - 1] if t else None, arms_l, movable)
         if t + 1 < len(states):
             out += _transition_factors(t, s, states[t + 1], arms_l, movable)
     return out
