@@ -11,6 +11,7 @@ without any one of its factors. Every solve goes through ``Checker`` (counts, op
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -20,7 +21,7 @@ from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.solver import GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["Checker", "Conflict", "ExtractOptions", "find_conflict"]
+__all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
 
@@ -42,16 +43,29 @@ class Conflict:
         return " ; ".join(str(f) for f in self.factors)
 
 
-class Checker:
-    """Feasibility of subgraphs: the database first (if any), else an NLP solve (counted)."""
+class DeadlineError(Exception):
+    """The planner's time budget ran out in the middle of a conflict search (internal: caught by it)."""
 
-    def __init__(self, solver: GraphSolver, guess: Mapping[Var, FloatArray], db: SubgraphDB | None = None) -> None:
-        self.solver, self.guess, self.db = solver, dict(guess), db
+
+class Checker:
+    """Feasibility of subgraphs: the database first (if any), else an NLP solve (counted); raises
+    ``DeadlineError`` once ``time.perf_counter()`` passes ``deadline``."""
+
+    def __init__(
+        self,
+        solver: GraphSolver,
+        guess: Mapping[Var, FloatArray],
+        db: SubgraphDB | None = None,
+        deadline: float = float("inf"),
+    ) -> None:
+        self.solver, self.guess, self.db, self.deadline = solver, dict(guess), db, deadline
         self.last: SolveResult | None = None
 
     def feasible(self, factors: Sequence[Factor]) -> bool:
         if not factors:
             return True
+        if time.perf_counter() > self.deadline:
+            raise DeadlineError
         self.last = None
         if self.db is not None:
             known = self.db.lookup(factors)

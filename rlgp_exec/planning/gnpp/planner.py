@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.gnpp.conflicts import Checker, Conflict, ExtractOptions, find_conflict
+from rlgp_exec.planning.gnpp.conflicts import Checker, Conflict, DeadlineError, ExtractOptions, find_conflict
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
@@ -194,15 +194,18 @@ def plan_gnpp(
             continue
         graph = factors_of(states, lib.arms, objects)
         guess = initial_guess(lib, ik, states, variables(graph))
-        check = Checker(solver, guess, db)
-        if opts is None:  # one-way: the full graph, the whole plan blocked on failure
-            if not check.feasible(graph):
-                forbidden.append(_whole(states))
-                blocked_plans += 1
-                continue
-            conflict, values = None, dict(check.last.values) if check.last else {}
-        else:
-            conflict, values = find_conflict(check, graph, opts)
+        check = Checker(solver, guess, db, deadline=t0 + timeout_s)
+        try:
+            if opts is None:  # one-way: the full graph, the whole plan blocked on failure
+                if not check.feasible(graph):
+                    forbidden.append(_whole(states))
+                    blocked_plans += 1
+                    continue
+                conflict, values = None, dict(check.last.values) if check.last else {}
+            else:
+                conflict, values = find_conflict(check, graph, opts)
+        except DeadlineError:
+            return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s ({'; '.join(reasons[-2:])})", it=it)
         if conflict is not None:
             found.append(conflict)
             guesses.append(dict(check.guess))
