@@ -63,6 +63,10 @@ def _rel_pose(r: ca.SX) -> ca.SX:
     return T
 
 
+_W = ca.SX.sym("w", 4)
+_YAW_POSE = ca.Function("yaw_pose", [_W], [yaw_pose(_W)])
+
+
 class FactorLib:
     """The scene's factor functions and variable bounds (PR2: both arms; base and torso fixed)."""
 
@@ -288,13 +292,9 @@ class FactorLib:
     def tool_T(self, arm: str, q7: FloatArray) -> FloatArray:
         return np.asarray(self.arm_shapes(arm)[0](q7)[1])
 
-    def world_of_held(self, arm: str, q7: FloatArray, r: FloatArray) -> FloatArray:
-        """The world pose [x, y, z, yaw] of an object held at r by ``arm`` at q7."""
-        T = self.tool_T(arm, q7) @ np.asarray(ca.Function("rel", [s := ca.SX.sym("r", 4)], [_rel_pose(s)])(r))
-        return np.array([T[0, 3], T[1, 3], T[2, 3], math.atan2(T[1, 0], T[0, 0])])
-
     def object_T(self, w: FloatArray) -> FloatArray:
-        return np.asarray(ca.Function("yp", [s := ca.SX.sym("w", 4)], [yaw_pose(s)])(w))
+        """The (4, 4) transform of an upright pose w = [x, y, z, yaw]."""
+        return np.asarray(_YAW_POSE(w))
 
 
 FACTOR_KINDS = ("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
