@@ -281,11 +281,13 @@ class FactorLib:
         return self._arm_object(arm, obj, (3, 4, 5))
 
     def _f_ColOO(self, obj_a: str, obj_b: str):
+        """Two upright boxes apart: a's centre outside b's box grown by a's footprint radius sideways and
+        a's half height up and down (a Minkowski sum, exact vertically, conservative sideways)."""
         wa, wb, rows = ca.SX.sym("wa", 4), ca.SX.sym("wb", 4), Rows.empty()
         sa, sb = self.objects[obj_a].size, self.objects[obj_b].size
-        ra, rb = math.hypot(sa[0], sa[1]) / 2, math.hypot(sb[0], sb[1]) / 2
-        points_box_clear([wa[:3]], [ra], wb, np.asarray(sb) / 2, rows)
-        points_box_clear([wb[:3]], [rb], wa, np.asarray(sa) / 2, rows)
+        ra = math.hypot(sa[0], sa[1]) / 2
+        grown = np.asarray(sb) / 2 + np.array([ra, ra, sa[2] / 2])
+        points_box_clear([wa[:3]], [0.0], wb, grown, rows)
         return [wa, wb], rows
 
     # ----------------------------------------------------------------- numeric helpers
