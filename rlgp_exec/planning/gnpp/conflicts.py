@@ -24,6 +24,7 @@ from rlgp_exec.robot.model import FloatArray
 __all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
+FILTER_MAX = 12  # the deletion filter (one solve per factor) runs on conflicts up to this size
 
 
 @dataclass(frozen=True)
@@ -145,7 +146,9 @@ def find_conflict(
                 continue
             sub = _time_search(check, comp) if opts.time_search else comp
             if opts.convergence:
-                sub = _deletion_filter(check, _convergence(check, sub))
+                sub = _convergence(check, sub)
+                if len(sub) <= FILTER_MAX:  # larger ones stay as found (small, not proven minimal)
+                    sub = _deletion_filter(check, sub)
             log.info("conflict (%s, %d factors): %s", rel, len(sub), "; ".join(map(str, sub)))
             return Conflict(tuple(sub), rel), {}
     return None, values
