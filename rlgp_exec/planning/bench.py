@@ -160,6 +160,17 @@ def run_planner_bench(
             "steps_median": _median([r["n_steps"] for r in ok]),
             "n_nlp_median": _median([r["n_nlp"] for r in ok]),
         }
+        counted = [r["counters"] for r in rs if r.get("counters")]
+        if counted:  # planner-specific counters (GNPP: Table I's N0, N, NLPs), medians over the runs
+            ok_counted = [r["counters"] for r in ok if r.get("counters")]
+            summary[name].update(
+                {
+                    "n0_median": _median([c["n0"] for c in counted if c.get("n0") is not None]),
+                    "n_median": _median([c["n"] for c in ok_counted if c.get("n") is not None]),
+                    "nlp_median_all_runs": _median([c["nlp"] for c in counted if "nlp" in c]),
+                    "conflicts_median": _median([c["conflicts"] for c in counted if "conflicts" in c]),
+                }
+            )
     out = {
         "task": base.name,
         "seeds": seeds,

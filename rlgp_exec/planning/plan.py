@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,6 +24,7 @@ class Plan:
     nodes_expanded: int  # symbolic search
     validation: Validation | None
     reason: str
+    counters: dict = field(default_factory=dict)  # planner-specific counts (GNPP: n0, n, nlp, ...)
 
     @property
     def base_path_length_m(self) -> float:
@@ -47,4 +48,5 @@ class Plan:
             "n_nlp": self.n_nlp,
             "nodes_expanded": self.nodes_expanded,
             "reason": self.reason,
+            **({"counters": dict(self.counters)} if self.counters else {}),
         }

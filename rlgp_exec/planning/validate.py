@@ -41,6 +41,8 @@ class Phase:
     knob: str | None = None  # the hand is at this cabinet's knob: the fingers may touch its drawer
     drives_drawer: bool = False  # the hand holds the knob: the drawer follows it along its axis
     fall: bool = False  # the released object falls onto whatever is below it (a drop into a drawer)
+    arm: str | None = None  # the manipulator of held / grasp / release (None: the robot's first)
+    carried: tuple[tuple[str, str], ...] = ()  # (manipulator, object) held by the other arms meanwhile
 
 
 @dataclass(frozen=True)
@@ -97,15 +99,18 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
 
     world = build_world(scene, tags=False)
     robot, model, client = world.robot, world.robot_model, world.client
-    tool = model.manipulator().tool_frame
-    fingers = set(model.manipulator().links)
     collisions: list[str] = []
-    held_T: FloatArray | None = None
-    held_rest = 0.0  # [m] the held object's penetration into its support when it was grasped
+    # per held object: the tool frame holding it, T_tool_obj, and its penetration into its support when
+    # it was grasped [m] (two arms may hold one object each)
+    held: dict[str, tuple[str, FloatArray, float]] = {}
     try:
         for k, ph in enumerate(phases):
-            if ph.held is not None and held_T is None:
-                raise ValueError(f"phase {k} holds {ph.held} but nothing was grasped")
+            tool = model.manipulator(ph.arm).tool_frame
+            fingers = set(model.manipulator(ph.arm).links)
+            moving = ([ph.held] if ph.held is not None else []) + [o for _, o in ph.carried]
+            for o in moving:
+                if o not in held:
+                    raise ValueError(f"phase {k} holds {o} but nothing was grasped")
             pairs = zip(ph.path[:-1], ph.path[1:], strict=True)
             qs = np.vstack([interpolate_path(world, a, b, step) for a, b in pairs]) if len(ph.path) > 1 else ph.path
             motion = None
@@ -118,8 +123,8 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                     if violation is not None:
                         collisions.append(f"phase {k}: {violation}")
                         break
-                if ph.held is not None:
-                    world.set_object_pose(ph.held, model.fk(q, tool) @ held_T)
+                for o in moving:
+                    world.set_object_pose(o, model.fk(q, held[o][0]) @ held[o][1])
                 for c in robot.contacts(tolerance):
                     name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
                     if ph.grasp is not None and name == ph.grasp and c.link in fingers:
@@ -127,11 +132,10 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                     if ph.knob is not None and name == ph.knob and c.other_link == "0" and c.link in fingers:
                         continue  # the fingers round the knob (link 0 of a cabinet: its drawer)
                     collisions.append(f"phase {k}: robot {c.link} ~ {name}")
-                if ph.held is not None:
-                    hb = world.objects[ph.held]
-                    for c in p.getContactPoints(bodyA=hb, physicsClientId=client):
-                        if c[2] != robot.id and c[8] < held_rest - tolerance:
-                            collisions.append(f"phase {k}: held {ph.held} ~ {world.body_name(c[2])}")
+                for o in moving:
+                    for c in p.getContactPoints(bodyA=world.objects[o], physicsClientId=client):
+                        if c[2] != robot.id and c[8] < held[o][2] - tolerance:
+                            collisions.append(f"phase {k}: held {o} ~ {world.body_name(c[2])}")
                 if collisions:
                     break
             if collisions:
@@ -143,7 +147,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                 # an object may rest a little sunk into its support (scene tolerance): lifting it off
                 # must not count that as a collision, going deeper must
                 p.performCollisionDetection(physicsClientId=client)
-                held_rest = min(
+                rest = min(
                     [0.0]
                     + [
                         c[8]
@@ -151,9 +155,10 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                         if c[2] != robot.id
                     ]
                 )
+                held[ph.grasp] = (tool, held_T, rest)
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
-                held_T = None
+                held.pop(ph.release, None)
                 if ph.fall:
                     settle(world, ph.release, robot.id, tolerance)
         poses = {name: world.object_pose(name) for name in world.objects}

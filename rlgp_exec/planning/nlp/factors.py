@@ -17,7 +17,18 @@ from rlgp_exec.reach.ik import _smooth_pos, arm_spheres, base_circles, box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["RobotSymbols", "Rows", "box_clear", "footprint_clear", "grasp_top", "inside_rectangle"]
+__all__ = [
+    "RobotSymbols",
+    "Rows",
+    "box_clear",
+    "footprint_clear",
+    "grasp_top",
+    "inside_rectangle",
+    "points_apart",
+    "points_box_clear",
+    "upright_match",
+    "yaw_pose",
+]
 
 
 @dataclass
@@ -136,3 +147,49 @@ def grasp_top_round(rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, floa
 
 
 __all__ += ["grasp_top_round"]
+
+# ---------------------------------------------------------------------------------------------------
+# Factors on upright object poses w = [x, y, z, yaw] (world frame [m, rad]) and on point sets, shared by
+# the GNPP graph-NLP (appended; the factors above keep their signatures).
+
+
+def yaw_pose(w: ca.SX) -> ca.SX:
+    """The (4, 4) transform of an upright pose w = [x, y, z, yaw]."""
+    c, s = ca.cos(w[3]), ca.sin(w[3])
+    T = ca.SX.eye(4)
+    T[0, 0], T[0, 1], T[1, 0], T[1, 1] = c, -s, s, c
+    T[0, 3], T[1, 3], T[2, 3] = w[0], w[1], w[2]
+    return T
+
+
+def points_box_clear(
+    points: list[ca.SX], radii: list[float], w_box: ca.SX, half: FloatArray, rows: Rows, margin: float = 0.0
+) -> None:
+    """Every sphere (centre ``points[k]`` (3,) world, radius ``radii[k]``) at least its radius (+ margin)
+    from an upright box of half extents ``half`` at pose ``w_box`` = [x, y, z, yaw] (symbolic)."""
+    c, s = ca.cos(w_box[3]), ca.sin(w_box[3])
+    for p, r in zip(points, radii, strict=True):
+        dx, dy, dz = p[0] - w_box[0], p[1] - w_box[1], p[2] - w_box[2]
+        local = ca.vertcat(c * dx + s * dy, -s * dx + c * dy, dz)
+        rows.add(box_sdf(local, np.asarray(half, float)), r + margin, ca.inf)
+
+
+def points_apart(
+    a: list[ca.SX], ra: list[float], b: list[ca.SX], rb: list[float], rows: Rows, margin: float = 0.0
+) -> None:
+    """Spheres of set a clear of spheres of set b (squared centre distances, smooth)."""
+    for p, r1 in zip(a, ra, strict=True):
+        for q, r2 in zip(b, rb, strict=True):
+            rows.add(ca.sumsqr(p - q), (r1 + r2 + margin) ** 2, ca.inf)
+
+
+def upright_match(T: ca.SX, w: ca.SX, rows: Rows) -> None:
+    """A transform T (4, 4) equals the upright pose w = [x, y, z, yaw]: 3 position rows, 2 rows for the
+    z axis vertical, 1 row for the yaw modulo pi (6 independent equalities: one per degree of freedom,
+    so the Jacobian keeps full rank; a box turned by pi is the same box)."""
+    for i in range(3):
+        rows.add(T[i, 3] - w[i], 0.0, 0.0)
+    rows.add(T[0, 2], 0.0, 0.0)
+    rows.add(T[1, 2], 0.0, 0.0)
+    c, s = ca.cos(w[3]), ca.sin(w[3])
+    rows.add(T[1, 0] * c - T[0, 0] * s, 0.0, 0.0)

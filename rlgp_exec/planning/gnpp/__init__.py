@@ -1,0 +1,29 @@
+"""GNPP: the Graph-NLP planner (minimal infeasible subgraphs + logic reformulation), registered as the
+planners ``gnpp`` (= ``gnpp_trn``), ``gnpp_t``, ``gnpp_tr``, ``gnpp_trn``, ``gnpp_trng`` and ``oneway`` (logic by
+the internal best-first search on the compiled task) and ``gnpp_trn_fd`` (logic by Fast Downward)."""
+
+from __future__ import annotations
+
+from rlgp_exec.planning.gnpp.planner import VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
+from rlgp_exec.planning.plan import Plan
+from rlgp_exec.planning.registry import register
+from rlgp_exec.scene import Scene
+
+BENCH_TIMEOUT_S = 40.0  # [s] per planning call of a registered variant (the paper: 100 s on its machine)
+
+__all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
+
+
+def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
+    def run(scene: Scene, seed: int) -> Plan:
+        from dataclasses import replace
+
+        return replace(plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S).plan, planner=name)
+
+    return run
+
+
+for _v in VARIANTS:
+    register(_v, _planner(_v, _v))
+register("gnpp", _planner("gnpp_trn", "gnpp"))
+register("gnpp_trn_fd", _planner("gnpp_trn", "gnpp_trn_fd", Logic.FAST_DOWNWARD))  # the same, logic by Fast Downward

@@ -1,0 +1,128 @@
+"""The graph-NLP (GNPP paper, Sec. IV): a bipartite graph of variables x_t^k and factors h_b, its
+subgraphs, relaxations, connected components, time slices, semantic graphs for the isomorphism test,
+and the trace back from a subgraph to the partial-state sequence that generates it (Sec. VII).
+
+A subgraph is represented by its factors (Def. 4.2 with X_M = the variables its factors touch).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable, Sequence
+
+import networkx as nx
+
+from rlgp_exec.planning.gnpp.pntc import Factor, Var
+from rlgp_exec.planning.symbolic.model import Atom
+from rlgp_exec.planning.symbolic.reformulate import ForbiddenSequence, PartialState
+
+__all__ = [
+    "Relaxation",
+    "components",
+    "describe",
+    "relax",
+    "semantic_graph",
+    "time_slice",
+    "times_of",
+    "to_forbidden",
+    "variables",
+]
+
+
+class Relaxation(enum.Flag):
+    """Which variables/constraints a relaxation deletes (paper Sec. VIII-B; No Traj is implied: this
+    graph has mode switches only)."""
+
+    NONE = 0
+    NO_ROBOT = enum.auto()  # robot variables and every factor on them
+    NO_COL = enum.auto()  # collision factors
+    NO_TIME = enum.auto()  # time-consistency factors (Equal)
+
+
+#: the paper's order (Appendix C), loose to tight; the last entry is the full (mode-switch) graph
+PAPER_ORDER: tuple[Relaxation, ...] = (
+    Relaxation.NO_ROBOT | Relaxation.NO_COL,
+    Relaxation.NO_COL,
+    Relaxation.NO_ROBOT | Relaxation.NO_TIME,
+    Relaxation.NO_TIME,
+    Relaxation.NONE,
+)
+
+
+def relax(factors: Iterable[Factor], r: Relaxation) -> list[Factor]:
+    out = []
+    for f in factors:
+        if Relaxation.NO_ROBOT in r and f.robot:
+            continue
+        if Relaxation.NO_COL in r and f.collision:
+            continue
+        if Relaxation.NO_TIME in r and f.time_consistency:
+            continue
+        out.append(f)
+    return out
+
+
+def variables(factors: Iterable[Factor]) -> list[Var]:
+    return sorted({v for f in factors for v in f.vars})
+
+
+def components(factors: Sequence[Factor]) -> list[list[Factor]]:
+    """Connected components (Property 4.5), each in the input order, largest time span last."""
+    parent: dict[Var, Var] = {}
+
+    def find(v: Var) -> Var:
+        while parent.setdefault(v, v) != v:
+            parent[v] = parent[parent[v]]
+            v = parent[v]
+        return v
+
+    for f in factors:
+        root = find(f.vars[0])
+        for v in f.vars[1:]:
+            parent[find(v)] = root
+    groups: dict[Var, list[Factor]] = {}
+    for f in factors:
+        groups.setdefault(find(f.vars[0]), []).append(f)
+    return sorted(groups.values(), key=lambda g: (times_of(g)[1] - times_of(g)[0], len(g)))
+
+
+def times_of(factors: Iterable[Factor]) -> tuple[int, int]:
+    ts = [t for f in factors for t in f.times]
+    return min(ts), max(ts)
+
+
+def time_slice(factors: Iterable[Factor], first: int, last: int) -> list[Factor]:
+    """G[first .. last]: the factors whose variables all lie in that time window."""
+    return [f for f in factors if f.times[0] >= first and f.times[1] <= last]
+
+
+def semantic_graph(factors: Iterable[Factor]) -> nx.Graph:
+    """The labelled bipartite graph: variable nodes labelled (kind, owner), factor nodes labelled by
+    their function key, edges by the variable's slot in the factor (time indices left out)."""
+    g = nx.Graph()
+    for i, f in enumerate(factors):
+        g.add_node(("f", i), label=("f", *f.key))
+        for slot, v in enumerate(f.vars):
+            g.add_node(v, label=v.label)
+            g.add_edge(("f", i), v, slot=slot)
+    return g
+
+
+def to_forbidden(factors: Iterable[Factor]) -> ForbiddenSequence:
+    """The partial-state sequence <p_0 .. p_L> whose facts generate exactly these factors (Sec. VII)."""
+    by_t: dict[int, tuple[set[Atom], set[Atom]]] = {}
+    for f in factors:
+        for t, p in f.partial:
+            pos, neg = by_t.setdefault(t, (set(), set()))
+            pos |= p.pos
+            neg |= p.neg
+    lo, hi = min(by_t), max(by_t)
+    seq = []
+    for t in range(lo, hi + 1):
+        pos, neg = by_t.get(t, (set(), set()))
+        seq.append(PartialState(frozenset(pos), frozenset(neg)))
+    return ForbiddenSequence(tuple(seq))
+
+
+def describe(factors: Iterable[Factor]) -> str:
+    return "; ".join(str(f) for f in factors)

@@ -1,0 +1,132 @@
+"""Initial values for a plan's graph-NLP: object poses followed through the logic states, arm
+configurations from a small top-grasp IK (cached), so that every NLP of the plan starts from the same,
+reasonable point."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import casadi as ca
+import numpy as np
+
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, T_TOOL_UPRIGHT, FactorLib
+from rlgp_exec.planning.gnpp.pntc import Var, parents
+from rlgp_exec.planning.symbolic.model import SymbolicState
+from rlgp_exec.robot.model import FloatArray
+
+__all__ = ["TopIK", "initial_guess"]
+
+log = logging.getLogger(__name__)
+RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
+
+
+class TopIK:
+    """q (7,) for one arm with the tool at a point, approach straight down, fingers horizontal,
+    the arm clear of the fixtures; closest to a reference posture. Also used to lift a hand."""
+
+    def __init__(self, lib: FactorLib) -> None:
+        self.lib = lib
+        self._solvers: dict[str, tuple] = {}
+        self._memo: dict[tuple, tuple[bool, FloatArray]] = {}
+        self.n_solves = 0
+
+    def _solver(self, arm: str):
+        if arm not in self._solvers:
+            man = self.lib.model.manipulator(arm)
+            n = len(self.lib.arm_index(arm))
+            q, p = ca.SX.sym("q", n), ca.SX.sym("p", 3 + n)
+            T = self.lib.arm_shapes(arm)[0](q)[1]
+            a = T[:3, :3] @ ca.DM(man.approach)
+            c = T[:3, :3] @ ca.DM(man.closing)
+            col = self.lib.factor(("ColFix", arm))
+            g = ca.vertcat(T[:3, 3] - p[:3], a[2], c[2], col.fn(q))
+            lbg = np.r_[np.zeros(3), -1.0, 0.0, col.lower]
+            ubg = np.r_[np.zeros(3), -np.cos(MAX_TILT), 0.0, col.upper]
+            opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 100}
+            s = ca.nlpsol(f"top_ik_{arm}", "ipopt", {"x": q, "p": p, "f": ca.sumsqr(q - p[3:]), "g": g}, opts)
+            self._solvers[arm] = (s, lbg, ubg)
+        return self._solvers[arm]
+
+    def solve(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
+        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it."""
+        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2))
+        if key in self._memo:
+            return self._memo[key]
+        s, lbg, ubg = self._solver(arm)
+        lo, hi = self.lib.var_bounds("q", arm)
+        rng = np.random.default_rng(7)
+        home = self.lib.home_q(arm)
+        starts = [q_ref, home] + [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
+        out = (False, np.asarray(q_ref, float))
+        for q0 in starts:
+            res = s(x0=np.clip(q0, lo, hi), p=np.r_[pos, q_ref], lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
+            self.n_solves += 1
+            q = np.asarray(res["x"]).reshape(-1)
+            g = np.asarray(res["g"]).reshape(-1)
+            err = np.linalg.norm(self.lib.tool_T(arm, q)[:3, 3] - pos)
+            if err < 2e-3 and np.all(g >= lbg - 1e-4) and np.all(g <= ubg + 1e-4):
+                out = (True, q)
+                break
+        self._memo[key] = out
+        return out
+
+
+def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatArray:
+    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q7."""
+    R = (np.linalg.inv(lib.tool_T(arm, q7)) @ lib.object_T(w))[:3]
+    z = R[:3, 2]
+    theta = math.atan2(z[2], -z[0])
+    ct, st = math.cos(theta), math.sin(theta)
+    Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
+    M = T_TOOL_UPRIGHT.T @ Ry.T @ R[:3, :3]
+    psi = math.atan2(M[1, 0], M[0, 0])
+    p = R[:3, 3]
+    return np.array([-float(p @ z), float(p[1]), psi, theta])
+
+
+def initial_guess(
+    lib: FactorLib, ik: TopIK, states: Sequence[SymbolicState], variables: Sequence[Var]
+) -> dict[Var, FloatArray]:
+    """A value for every variable of the plan's graph (and for arms' variables not in it)."""
+    arms = lib.arms
+    world: dict[str, FloatArray] = {o: lib.start_pose(o) for o in lib.objects}
+    q: dict[str, FloatArray] = {m: lib.home_q(m) for m in arms}
+    out: dict[Var, FloatArray] = {}
+    prev: dict[str, str] = parents(states[0])
+    held: dict[str, FloatArray] = {}
+    for t, s in enumerate(states):
+        par = parents(s)
+        for o in sorted(par):
+            p = par[o]
+            if p in arms:
+                if prev.get(o) != p:  # picked now: the arm goes to the object's top
+                    h = lib.objects[o].size[2]
+                    top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
+                    q[p] = ik.solve(p, top, q[p])[1]
+                    held[o] = _held_of(lib, p, q[p], world[o])
+                out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
+                continue
+            if prev.get(o) != p:  # placed now
+                h = lib.objects[o].size[2]
+                if p in lib.objects:
+                    wp = world[p]
+                    world[o] = np.array([wp[0], wp[1], wp[2] + (h + lib.objects[p].size[2]) / 2 + PLACE_LIFT, wp[3]])
+                else:
+                    T, _, z = lib.surface(p)
+                    region = any(r.name == p for r in lib.scene.regions)
+                    xy = T[:2, 3] if region else world[o][:2]
+                    world[o] = np.array([xy[0], xy[1], z + h / 2 + PLACE_LIFT, world[o][3]])
+                arm = prev.get(o)
+                if arm in arms:
+                    top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
+                    q[arm] = ik.solve(arm, top, q[arm])[1]
+            out[Var("x", o, t)] = world[o].copy()
+        for m in arms:
+            out[Var("q", m, t)] = q[m].copy()
+        prev = par
+    missing = [v for v in variables if v not in out]
+    if missing:
+        log.warning("no initial value for %s", missing[:5])
+    return out

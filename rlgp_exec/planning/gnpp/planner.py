@@ -1,0 +1,248 @@
+"""The Graph-NLP planner (GNPP paper, Fig. 3) and its ablations.
+
+Loop: a logic plan for the current (reformulated) task -> its graph-NLP -> a small infeasible
+subgraph (``conflicts``) or a solution -> forbid the conflict's partial-state sequence in the logic
+task (``symbolic.reformulate``, the paper's compilation) -> again. A solution is laid out as joint
+paths and replayed (``validate_plan``); a replay failure forbids that whole state sequence.
+
+Variants (paper Sec. VIII-C): ``gnpp_t`` (time search on the full graph: conflicts are whole state
+windows), ``gnpp_tr`` (+ relaxations), ``gnpp_trn`` (+ convergence heuristic and deletion filter:
+minimal conflicts), ``gnpp_trng`` (+ database of feasible/infeasible subgraphs), and ``oneway``
+(solve the full graph, block the whole plan on failure).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.gnpp.conflicts import Checker, Conflict, DeadlineError, ExtractOptions, find_conflict
+from rlgp_exec.planning.gnpp.database import SubgraphDB
+from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
+from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
+from rlgp_exec.planning.gnpp.motion import phases_of
+from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
+from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.plan import Plan
+from rlgp_exec.planning.symbolic import (
+    FDStatus,
+    ForbiddenSequence,
+    GroundAction,
+    GroundProblem,
+    PartialState,
+    best_first,
+    goal_lower_bound,
+    ground_scene,
+    reformulate,
+    solve_ground,
+)
+from rlgp_exec.planning.validate import validate_plan
+from rlgp_exec.robot import load_robot
+from rlgp_exec.scene import Scene
+
+__all__ = ["VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
+
+log = logging.getLogger(__name__)
+
+VARIANTS: dict[str, ExtractOptions | None] = {
+    "gnpp_t": ExtractOptions(time_search=True, relaxations=False, convergence=False),
+    "gnpp_tr": ExtractOptions(time_search=True, relaxations=True, convergence=False),
+    "gnpp_trn": ExtractOptions(time_search=True, relaxations=True, convergence=True),
+    "gnpp_trng": ExtractOptions(time_search=True, relaxations=True, convergence=True, database=True),
+    "oneway": None,
+}
+GEOMETRIC = ("pick", "place", "stack")
+
+
+class Logic(enum.Enum):
+    FAST_DOWNWARD = "fd"  # lama-first on the ground, reformulated task
+    INTERNAL = "internal"  # our best-first search on the same compiled task
+
+
+class GnppStatus(enum.Enum):
+    SOLVED = "solved"
+    INFEASIBLE = "infeasible"  # the logic task with the learnt conflicts has no plan: proven
+    TIMEOUT = "timeout"
+    LOGIC_FAILED = "logic_failed"  # the logic planner ended without a proof (budget, error)
+
+
+@dataclass(frozen=True)
+class GnppResult:
+    status: GnppStatus
+    plan: Plan
+    conflicts: tuple[ForbiddenSequence, ...]
+    conflict_factors: tuple[Conflict, ...]
+    n0: int | None  # length of the first logic plan
+    iterations: int
+    logic_time_s: float
+    counters: dict = field(default_factory=dict)
+
+
+def _logic_plan(
+    task: GroundProblem, forbidden: list[ForbiddenSequence], logic: Logic, timeout_s: float
+) -> tuple[tuple[GroundAction, ...] | None, GnppStatus | None, str]:
+    ref = reformulate(task, forbidden).problem
+    if logic is Logic.FAST_DOWNWARD:
+        r = solve_ground(ref, timeout_s=max(timeout_s, 1.0))
+        if r.solved:
+            return r.plan, None, ""
+        if r.status is FDStatus.UNSOLVABLE:
+            return None, GnppStatus.INFEASIBLE, "Fast Downward: unsolvable"
+        return None, GnppStatus.LOGIC_FAILED, f"Fast Downward: {r.status.value}: {r.reason}"
+    search = best_first(ref, max_expansions=200_000, heuristic=goal_lower_bound(task), max_visits=1)
+    for cand in search:
+        return cand.actions, None, ""
+    if search.stats.exhausted:
+        return None, GnppStatus.INFEASIBLE, "best-first search: no plan left"
+    return None, GnppStatus.LOGIC_FAILED, "best-first search: expansion budget hit"
+
+
+def plan_gnpp(
+    scene: Scene,
+    variant: str = "gnpp_trn",
+    logic: Logic = Logic.INTERNAL,
+    timeout_s: float = 60.0,
+    max_iterations: int = 300,
+) -> GnppResult:
+    """Plan the scene's goal with a GNPP variant (see ``VARIANTS``)."""
+    if variant not in VARIANTS:
+        raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
+    opts = VARIANTS[variant]
+    t0 = time.perf_counter()
+    model = load_robot(scene.robot.name)
+    lib = FactorLib(model, scene)
+    ik, solver = TopIK(lib), GraphSolver(lib)
+    db = SubgraphDB() if opts is not None and opts.database else None
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    objects = [o.name for o in scene.objects]
+    forbidden: list[ForbiddenSequence] = []
+    found: list[Conflict] = []
+    guesses: list[dict] = []  # the start each conflict was found from
+    conflict_seqs: list[ForbiddenSequence] = []
+    verified = False
+    n0, logic_s, blocked_plans = None, 0.0, 0
+    reasons: list[str] = []
+
+    def result(status: GnppStatus, reason: str, plan: Plan | None = None, it: int = 0) -> GnppResult:
+        counters = {
+            "n0": n0,
+            "n": len(plan.actions) if plan is not None and plan.success else None,
+            "nlp": solver.n_solves,
+            "db_hits": db.hits if db is not None else 0,
+            "conflicts": len(found),
+            "blocked_plans": blocked_plans,
+            "iterations": it,
+            "logic_s": logic_s,
+            "nlp_s": solver.solve_time_s,
+        }
+        if plan is None:
+            plan = Plan(
+                False,
+                variant,
+                (),
+                np.zeros((0, model.nq)),
+                (),
+                time.perf_counter() - t0,
+                solver.n_solves,
+                0,
+                None,
+                reason,
+            )
+        plan = replace(plan, planning_time_s=time.perf_counter() - t0, counters=counters)
+        return GnppResult(status, plan, tuple(forbidden), tuple(found), n0, it, logic_s, counters)
+
+    for it in range(1, max_iterations + 1):
+        left = timeout_s - (time.perf_counter() - t0)
+        if left <= 0:
+            return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s ({'; '.join(reasons[-2:])})", it=it)
+        tl = time.perf_counter()
+        actions, status, why = _logic_plan(task, forbidden, logic, left)
+        logic_s += time.perf_counter() - tl
+        if actions is None and status is GnppStatus.INFEASIBLE and found and not verified:
+            # the proof rests on the conflicts: each must withstand a few more starts of the (local) solver
+            verified = True
+            keep = [k for k, c in enumerate(found) if not solver.refute(c.factors, guesses[k])]
+            if len(keep) < len(found):
+                log.info("%s: %d conflicts refuted by other starts", variant, len(found) - len(keep))
+                n_conf = len(found)
+                found[:] = [found[k] for k in keep]
+                guesses[:] = [guesses[k] for k in keep]
+                # forbidden = conflicts (in order) interleaved with blocked plans: rebuild from both
+                forbidden[:] = [f for f in forbidden if f not in conflict_seqs[:n_conf]] + [
+                    to_forbidden(c.factors) for c in found
+                ]
+                conflict_seqs[:] = [to_forbidden(c.factors) for c in found]
+                verified = False
+                continue
+        if actions is None:
+            assert status is not None
+            proof = f" ({len(forbidden)} learnt conflicts prove it)" if status is GnppStatus.INFEASIBLE else ""
+            return result(status, f"{status.value}: {why}{proof}", it=it)
+        if n0 is None:
+            n0 = len(actions)
+        bad = [a for a in actions if a.name not in GEOMETRIC]
+        states = task.simulate(actions)
+        if bad:
+            forbidden.append(_whole(states))
+            reasons.append(f"{bad[0]}: no geometry for {bad[0].name}")
+            continue
+        graph = factors_of(states, lib.arms, objects)
+        guess = initial_guess(lib, ik, states, variables(graph))
+        check = Checker(solver, guess, db, deadline=t0 + timeout_s)
+        try:
+            if opts is None:  # one-way: the full graph, the whole plan blocked on failure
+                if not check.feasible(graph):
+                    forbidden.append(_whole(states))
+                    blocked_plans += 1
+                    continue
+                conflict, values = None, dict(check.last.values) if check.last else {}
+            else:
+                conflict, values = find_conflict(check, graph, opts)
+        except DeadlineError:
+            return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s ({'; '.join(reasons[-2:])})", it=it)
+        if conflict is not None:
+            found.append(conflict)
+            guesses.append(dict(check.guess))
+            conflict_seqs.append(to_forbidden(conflict.factors))
+            forbidden.append(conflict_seqs[-1])
+            log.info("%s iteration %d: %s", variant, it, forbidden[-1])
+            continue
+        laid = phases_of(lib, ik, actions, values)
+        if isinstance(laid, str):
+            forbidden.append(_whole(states))
+            blocked_plans += 1
+            reasons.append(laid)
+            continue
+        phases, keyframes = laid
+        validation = validate_plan(scene, phases)
+        names = tuple(str(a) for a in actions)
+        plan = Plan(
+            validation.ok,
+            variant,
+            names,
+            keyframes,
+            phases,
+            time.perf_counter() - t0,
+            solver.n_solves,
+            0,
+            validation,
+            "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet]),
+        )
+        if validation.ok:
+            return result(GnppStatus.SOLVED, "ok", plan, it)
+        log.info("%s iteration %d: replay failed: %s", variant, it, plan.reason)
+        reasons.append(f"replay: {plan.reason}")
+        forbidden.append(_whole(states))
+        blocked_plans += 1
+    return result(GnppStatus.TIMEOUT, f"no plan in {max_iterations} iterations ({'; '.join(reasons[-2:])})")
+
+
+def _whole(states) -> ForbiddenSequence:
+    """The complete state sequence of a plan (blocks that plan)."""
+    return ForbiddenSequence(tuple(PartialState(frozenset(s)) for s in states))

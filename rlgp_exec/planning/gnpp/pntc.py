@@ -1,0 +1,199 @@
+"""The PNTC model (GNPP paper, Sec. III): logic states, continuous variables, and the mapping Pi from
+consecutive partial states to constraint factors.
+
+Logic: the ground STRIPS task of ``symbolic`` (pick / place / stack for every arm), read as SAS+-like
+variables: ``parent(o)`` = the support an object rests on or the arm holding it, ``gripper(m)`` =
+free or the held object. Two flag atoms are added so that Pi is time-invariant: ``(at-init o)``
+(o rests where the scene put it; deleted by every pick of o — the paper's ``parent = o.init``) and
+``(initial-state)`` (deleted by every action; the arms are at their start configuration).
+
+Continuous variables per time step t (the state s_t, i.e. after the t-th action): ``q``/arm (7,) and
+``x``/object (4,) (see ``geometry``). Pi (each factor records the partial states that generated it,
+by time index, for tracing a conflict back to the logic):
+
+=========  ======================================  ===========================================
+factor     partial states                          constraint
+=========  ======================================  ===========================================
+RefQ(m)    {(initial-state)} at t                  q_t^m = start
+Ref(o)     {(at-init o)} at t                      x_t^o = the scene pose
+Kin(o,m)   {(on o s)} -> {(holding m o)} or back   tool(q_{t+1}^m) x^o_held = x^o_world
+Grasp(o)   {(on o s)} -> {(holding m o)}           x_{t+1}^o a grasp from above between the fingers
+Place(o,s) {(holding m o)} -> {(on o s)}           x_{t+1}^o on surface/slot s (inside, resting)
+On(o,p)    {(holding m o)} -> {(on o p)}           x_{t+1}^o resting on object x_{t+1}^p
+Equal(o)   parent unchanged t -> t+1               x_t^o = x_{t+1}^o
+ColFix(m)  {not (initial-state)} at t              arm m clear of the fixtures
+ColAA      {not (initial-state)} at t              the two arms clear of each other
+ColAO(m,o) {not (initial-state), not (holding * o)} arm m (up to the wrist) clear of resting object o
+ColHO(m,o) {not (holding m o)} -> same as ColAO     hand m clear of o, unless it has just let o go
+ColOO(o,p) both resting, not stacked on each other  resting objects clear of each other
+=========  ======================================  ===========================================
+
+Grasp, Place and On act at the switch only (Equal carries them on): repeating them at every step
+would add equalities that are redundant with Equal, which a Newton-type solver does not tolerate.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from rlgp_exec.planning.symbolic.model import Atom, GroundProblem, Operator, SymbolicState
+from rlgp_exec.planning.symbolic.reformulate import PartialState
+
+__all__ = ["INITIAL", "Factor", "Var", "add_flags", "factors_of", "parents"]
+
+INITIAL: Atom = ("initial-state",)
+COLLISION = ("ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
+TIME = ("Equal",)
+
+
+@dataclass(frozen=True, order=True)
+class Var:
+    """x_t^k: ``kind`` "q" (an arm's joints, 7) or "x" (an object's pose, 4), ``owner``, time ``t``."""
+
+    kind: str
+    owner: str
+    t: int
+
+    @property
+    def label(self) -> tuple[str, str]:
+        """The semantic label (time left out), for the subgraph-isomorphism test."""
+        return (self.kind, self.owner)
+
+    def __str__(self) -> str:
+        return f"{self.kind}[{self.owner}]@{self.t}"
+
+
+@dataclass(frozen=True)
+class Factor:
+    """A constraint h_b: function key (kind, args...), its variables in slot order, and the partial
+    states (by time index) that generated it under Pi."""
+
+    key: tuple[str, ...]
+    vars: tuple[Var, ...]
+    partial: tuple[tuple[int, PartialState], ...] = field(compare=False)
+
+    @property
+    def kind(self) -> str:
+        return self.key[0]
+
+    @property
+    def collision(self) -> bool:
+        return self.kind in COLLISION
+
+    @property
+    def time_consistency(self) -> bool:
+        return self.kind in TIME
+
+    @property
+    def robot(self) -> bool:
+        return any(v.kind == "q" for v in self.vars)
+
+    @property
+    def times(self) -> tuple[int, int]:
+        ts = [v.t for v in self.vars]
+        return min(ts), max(ts)
+
+    def __str__(self) -> str:
+        return f"{'/'.join(self.key)}({', '.join(map(str, self.vars))})"
+
+
+def add_flags(problem: GroundProblem) -> GroundProblem:
+    """``problem`` with the flag atoms (at-init o) and (initial-state) (see the module docstring)."""
+    objects = sorted(n for n, t in problem.objects if t == "movable")
+    ops = []
+    for op in problem.operators:
+        dels = set(op.delete) | {INITIAL}
+        if op.action.name in ("pick", "pick_from_drawer"):
+            dels.add(("at-init", op.action.args[1]))
+        ops.append(Operator(op.action, op.pre, op.pre_neg, op.add, frozenset(dels), op.cond_effects))
+    init = problem.init | {INITIAL} | {("at-init", o) for o in objects}
+    return GroundProblem(
+        problem.name, problem.domain_name, problem.objects, init, problem.goal, tuple(ops), problem.goal_neg
+    )
+
+
+def parents(state: SymbolicState) -> dict[str, str]:
+    """parent(o) for every object: the support it is on or the arm holding it."""
+    out = {}
+    for a in state:
+        if a[0] == "on":
+            out[a[1]] = a[2]
+        elif a[0] == "holding":
+            out[a[2]] = a[1]
+    return out
+
+
+def _ps(pos: Sequence[Atom] = (), neg: Sequence[Atom] = ()) -> PartialState:
+    return PartialState(frozenset(pos), frozenset(neg))
+
+
+def _state_factors(
+    t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str]
+) -> list[Factor]:
+    out: list[Factor] = []
+    par = parents(s)
+    if INITIAL in s:
+        out += [Factor(("RefQ", m), (Var("q", m, t),), ((t, _ps([INITIAL])),)) for m in arms]
+    resting = sorted(o for o in movable if o in par and par[o] not in arms)
+    for o in resting:
+        if ("at-init", o) in s:
+            out.append(Factor(("Ref", o), (Var("x", o, t),), ((t, _ps([("at-init", o)])),)))
+    if INITIAL not in s:  # the start configuration is given (the tucked arms are not modelled by spheres)
+        for m in arms:
+            out.append(Factor(("ColFix", m), (Var("q", m, t),), ((t, _ps((), [INITIAL])),)))
+        for ma, mb in itertools.combinations(arms, 2):
+            out.append(Factor(("ColAA", ma, mb), (Var("q", ma, t), Var("q", mb, t)), ((t, _ps((), [INITIAL])),)))
+        for m in arms:
+            for o in resting:
+                neg = [INITIAL] + [("holding", a, o) for a in arms]
+                out.append(Factor(("ColAO", m, o), (Var("q", m, t), Var("x", o, t)), ((t, _ps((), neg)),)))
+                if t > 0 and prev is not None and parents(prev).get(o) != m:  # not just let go by m
+                    ps = ((t - 1, _ps((), [("holding", m, o)])), (t, _ps((), neg)))
+                    out.append(Factor(("ColHO", m, o), (Var("q", m, t), Var("x", o, t)), ps))
+    for a, b in itertools.combinations(resting, 2):
+        if par[a] == b or par[b] == a:
+            continue
+        neg = [("holding", m, x) for m in arms for x in (a, b)] + [("on", a, b), ("on", b, a)]
+        out.append(Factor(("ColOO", a, b), (Var("x", a, t), Var("x", b, t)), ((t, _ps((), neg)),)))
+    return out
+
+
+def _transition_factors(
+    t: int, s: SymbolicState, s2: SymbolicState, arms: list[str], movable: set[str]
+) -> list[Factor]:
+    out: list[Factor] = []
+    p1, p2 = parents(s), parents(s2)
+    for o in sorted(set(p1) & set(p2) & movable):
+        a, b = p1[o], p2[o]
+        x1, x2 = Var("x", o, t), Var("x", o, t + 1)
+        if a == b and ("at-init", o) in s:
+            continue  # Ref pins both
+        if a == b:
+            fact = ("holding", a, o) if a in arms else ("on", o, a)
+            neg = [] if a in arms else [("at-init", o)]
+            out.append(Factor(("Equal", "4"), (x1, x2), ((t, _ps([fact], neg)), (t + 1, _ps([fact])))))
+        elif a not in arms and b in arms:  # pick: the kinematic switch and the grasp
+            ps = ((t, _ps([("on", o, a)])), (t + 1, _ps([("holding", b, o)])))
+            out.append(Factor(("Kin", o, b), (Var("q", b, t + 1), x1, x2), ps))
+            out.append(Factor(("Grasp", o), (x2,), ps))
+        elif a in arms and b not in arms:  # place / stack: the kinematic switch and the placement
+            ps = ((t, _ps([("holding", a, o)])), (t + 1, _ps([("on", o, b)])))
+            out.append(Factor(("Kin", o, a), (Var("q", a, t + 1), x2, x1), ps))
+            if b in movable:
+                out.append(Factor(("On", o, b), (x2, Var("x", b, t + 1)), ps))
+            else:
+                out.append(Factor(("Place", o, b), (x2,), ps))
+    return out
+
+
+def factors_of(states: Sequence[SymbolicState], arms: Sequence[str], objects: Sequence[str]) -> list[Factor]:
+    """Pi applied to a state sequence s_0 .. s_n: every factor of the graph-NLP, in time order."""
+    arms_l, movable = list(arms), set(objects)
+    out: list[Factor] = []
+    for t, s in enumerate(states):
+        out += _state_factors(t, s, states[t - 1] if t else None, arms_l, movable)
+        if t + 1 < len(states):
+            out += _transition_factors(t, s, states[t + 1], arms_l, movable)
+    return out

@@ -1,0 +1,161 @@
+"""Feasibility of a (sub)graph-NLP: assemble its factors into one sparse CasADi NLP and solve it with
+IPOPT, returning the convergence point and every factor's violation there (Def. 4.3).
+
+The NLP is ``min 1e-3 |x - x_guess|^2  s.t.  lower <= h(x) <= upper, variable bounds``; it is built
+once per *structure* (factor keys and the pattern of shared variables, time shifts ignored) and
+cached, so the many small subgraphs GNPP solves reuse their solvers (and CasADi's cached
+derivatives of each factor function).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.graph import variables
+from rlgp_exec.planning.gnpp.pntc import Factor, Var
+from rlgp_exec.robot.model import FloatArray
+
+__all__ = ["FEAS_TOL", "Feasibility", "GraphSolver", "SolveResult"]
+
+log = logging.getLogger(__name__)
+FEAS_TOL = 1e-4  # [m or rad] a factor is satisfied when no row is off its bounds by more
+W_REG = 1e-3
+IPOPT = {
+    "ipopt.print_level": 0,
+    "print_time": False,
+    "ipopt.sb": "yes",
+    "ipopt.max_iter": 100,
+    "ipopt.tol": 1e-6,
+    "ipopt.constr_viol_tol": 1e-5,
+    # feasibility is all that is asked: stop at the first iterate that satisfies the constraints
+    "ipopt.acceptable_iter": 1,
+    "ipopt.acceptable_tol": 1e20,
+    "ipopt.acceptable_constr_viol_tol": 1e-5,
+    "ipopt.acceptable_dual_inf_tol": 1e20,
+    "ipopt.acceptable_compl_inf_tol": 1e20,
+    "ipopt.acceptable_obj_change_tol": 1e20,
+    "ipopt.max_cpu_time": 1.5,
+    "ipopt.hessian_approximation": "limited-memory",
+}
+
+
+class Feasibility(enum.Enum):
+    FEASIBLE = "feasible"
+    INFEASIBLE = "infeasible"
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    feasibility: Feasibility
+    values: Mapping[Var, FloatArray]  # the convergence point
+    violations: tuple[float, ...]  # per factor, in the input order [m or rad]
+    solve_s: float
+
+    @property
+    def feasible(self) -> bool:
+        return self.feasibility is Feasibility.FEASIBLE
+
+
+@dataclass
+class _Built:
+    solver: ca.Function
+    g_fn: ca.Function
+    lbg: FloatArray
+    ubg: FloatArray
+    rows: list[tuple[int, int]]  # per factor: row range
+
+
+class GraphSolver:
+    """Solves subgraphs of one scene's graph-NLPs; ``n_solves`` counts the NLPs solved (a subgraph found
+    infeasible from the given start is solved ``restarts`` more times, from the arms' start postures:
+    the solver is local, and a false "infeasible" would forbid feasible plans)."""
+
+    def __init__(self, lib: FactorLib, restarts: int = 1) -> None:
+        self.lib, self.restarts = lib, restarts
+        self.n_solves = 0
+        self.solve_time_s = 0.0
+        self._cache: dict[tuple, _Built] = {}
+        self.iters: list[int] = []  # IPOPT iterations per solve
+
+    @staticmethod
+    def _structure(factors: Sequence[Factor], order: list[Var]) -> tuple:
+        pos = {v: i for i, v in enumerate(order)}
+        return (tuple(v.label for v in order), tuple((f.key, tuple(pos[v] for v in f.vars)) for f in factors))
+
+    def _build(self, factors: Sequence[Factor], order: list[Var]) -> _Built:
+        dims = [7 if v.kind == "q" else 4 for v in order]
+        offs = np.cumsum([0, *dims])
+        x = ca.MX.sym("x", int(offs[-1]))
+        p = ca.MX.sym("p", int(offs[-1]))
+        slot = {v: x[int(offs[i]) : int(offs[i + 1])] for i, v in enumerate(order)}
+        gs, lo, hi, rows = [], [], [], []
+        n = 0
+        for f in factors:
+            ff = self.lib.factor(f.key)
+            gs.append(ff.fn(*[slot[v] for v in f.vars]))
+            lo.append(ff.lower)
+            hi.append(ff.upper)
+            rows.append((n, n + len(ff.lower)))
+            n += len(ff.lower)
+        g = ca.vertcat(*gs)
+        nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
+        solver = ca.nlpsol("graph_nlp", "ipopt", nlp, IPOPT)
+        return _Built(solver, ca.Function("g", [x], [g]), np.concatenate(lo), np.concatenate(hi), rows)
+
+    def refute(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = 4, seed: int = 0) -> bool:
+        """True if the subgraph is feasible from one of ``tries`` seeded random starts (arms perturbed
+        about their start postures): a check of a conflict before it is used as a proof."""
+        rng = np.random.default_rng(seed)
+        for _ in range(tries):
+            start = {
+                v: (self.lib.home_q(v.owner) + rng.normal(0.0, 0.5, 7)) if v.kind == "q" else guess[v]
+                for v in variables(factors)
+            }
+            if self.solve(factors, start).feasible:
+                return True
+        return False
+
+    def solve(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]) -> SolveResult:
+        """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
+        t0 = time.perf_counter()
+        order = variables(factors)
+        key = self._structure(factors, order)
+        built = self._cache.get(key)
+        if built is None:
+            built = self._cache[key] = self._build(factors, order)
+        bounds = [self.lib.var_bounds(v.kind, v.owner) for v in order]
+        lbx = np.concatenate([b[0] for b in bounds])
+        ubx = np.concatenate([b[1] for b in bounds])
+        starts = [np.concatenate([guess[v] for v in order])]
+        if any(v.kind == "q" for v in order):  # a second start: every arm at its start posture
+            starts.append(np.concatenate([self.lib.home_q(v.owner) if v.kind == "q" else guess[v] for v in order]))
+        for x0 in starts[: 1 + self.restarts]:
+            x0 = np.clip(x0, lbx, ubx)
+            res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+            self.iters.append(int(built.solver.stats()["iter_count"]))
+            xs = np.asarray(res["x"]).reshape(-1)
+            g = np.asarray(built.g_fn(xs)).reshape(-1)
+            over = np.maximum(np.maximum(built.lbg - g, g - built.ubg), 0.0)
+            over[~np.isfinite(g)] = np.inf
+            viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
+            if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
+                break
+        values, k = {}, 0
+        for v in order:
+            d = 7 if v.kind == "q" else 4
+            values[v] = xs[k : k + d].copy()
+            k += d
+        ok = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
+        dt = time.perf_counter() - t0
+        self.n_solves += 1
+        self.solve_time_s += dt
+        log.debug("NLP %d: %d factors, %d vars: %s (%.1f ms)", self.n_solves, len(factors), len(order), ok, dt * 1e3)
+        return SolveResult(Feasibility.FEASIBLE if ok else Feasibility.INFEASIBLE, values, viol, dt)

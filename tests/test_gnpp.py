@@ -1,0 +1,177 @@
+"""GNPP: minimal conflicts, exact logic reformulation, the feasible-subgraph database, proofs of
+infeasibility, and a validated two-arm plan."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from rlgp_exec.planning.gnpp import GnppStatus, Logic, plan_gnpp
+from rlgp_exec.planning.gnpp.conflicts import Checker, ExtractOptions, find_conflict
+from rlgp_exec.planning.gnpp.database import SubgraphDB
+from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.graph import Relaxation, components, relax, to_forbidden, variables
+from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
+from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
+from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.symbolic import GroundAction, ground_scene, reformulate
+from rlgp_exec.robot import load_robot
+from rlgp_exec.scene import load_scene
+from rlgp_exec.scene.literals import parse_literal
+
+SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"
+
+
+def _tower(keep: list[str], goal: list[str]):
+    sc = load_scene(SCENES / "tower_pr2.toml")
+    return dataclasses.replace(
+        sc,
+        objects=tuple(o for o in sc.objects if o.name in keep),
+        goal=dataclasses.replace(sc.goal, literals=tuple(parse_literal(g) for g in goal)),
+    )
+
+
+@pytest.fixture(scope="module")
+def pr2():
+    return load_robot("pr2")
+
+
+@pytest.fixture(scope="module")
+def b4_setup(pr2):
+    """b4 (back left) on the goal region, attempted with the right arm (out of its reach)."""
+    scene = _tower(["b4"], ["(on b4 goal_region)"])
+    lib = FactorLib(pr2, scene)
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    plan = [GroundAction.parse("(pick right_arm b4 table)"), GroundAction.parse("(place right_arm b4 goal_region)")]
+    states = task.simulate(plan)
+    graph = factors_of(states, lib.arms, ["b4"])
+    guess = initial_guess(lib, TopIK(lib), states, variables(graph))
+    return scene, lib, task, graph, guess
+
+
+def test_extracted_conflict_is_minimal(b4_setup):
+    _, lib, _, graph, guess = b4_setup
+    check = Checker(GraphSolver(lib), guess)
+    conflict, _ = find_conflict(check, graph, ExtractOptions())
+    assert conflict is not None
+    kinds = {f.kind for f in conflict.factors}
+    assert "Kin" in kinds  # the kinematic switch of the unreachable grasp
+    fresh = GraphSolver(lib)  # an independent solver (no cache, no database)
+    assert not fresh.solve(conflict.factors, check.guess).feasible
+    for f in conflict.factors:
+        rest = [h for h in conflict.factors if h is not f]
+        assert fresh.solve(rest, check.guess).feasible, f"still infeasible without {f}"
+
+
+def _plans(task, depth: int):
+    """Every applicable action sequence of at most ``depth`` steps (with its states)."""
+    out = []
+
+    def rec(prefix, states):
+        out.append((tuple(prefix), tuple(states)))
+        if len(prefix) == depth:
+            return
+        for action, succ in task.successors(states[-1]):
+            rec([*prefix, action], [*states, succ])
+
+    rec([], [task.init])
+    return out
+
+
+def test_reformulation_forbids_exactly_the_plans_with_the_conflict(b4_setup):
+    _, lib, task, graph, guess = b4_setup
+    conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
+    seq = to_forbidden(conflict.factors)
+    compiled = reformulate(task, [seq]).problem
+    plans = _plans(task, 6)
+    assert len(plans) > 100
+    n_goal = n_forbidden = 0
+    for actions, states in plans:
+        solves = task.is_goal(states[-1])
+        contains = seq.occurs_in(states)
+        n_goal += solves
+        n_forbidden += solves and contains
+        assert compiled.reaches_goal(actions) == (solves and not contains), actions
+    assert n_forbidden > 0 and n_goal > n_forbidden  # the check covered both kinds of plan
+
+
+def test_feasible_database_hit_avoids_a_solve(pr2):
+    scene = _tower(["b1", "b2"], ["(on b1 goal_region)", "(on b2 b1)"])
+    lib = FactorLib(pr2, scene)
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    plan = [
+        GroundAction.parse(a)
+        for a in (
+            "(pick right_arm b2 table)",
+            "(place right_arm b2 table)",
+            "(pick left_arm b1 table)",
+            "(place left_arm b1 goal_region)",
+        )
+    ]
+    states = task.simulate(plan)
+    graph = relax(factors_of(states, lib.arms, ["b1", "b2"]), Relaxation.NO_COL)
+    guess = initial_guess(lib, TopIK(lib), states, variables(graph))
+    solver, db = GraphSolver(lib), SubgraphDB()
+    check = Checker(solver, guess, db)
+    assert check.feasible(graph)
+    assert solver.n_solves == 1
+    for comp in components(graph):  # every part of a known feasible graph: answered by the database
+        assert check.feasible(comp)
+    assert solver.n_solves == 1 and db.hits == len(components(graph))
+    # a graph the database cannot vouch for is solved
+    other = relax(factors_of(task.simulate(plan[:2]), lib.arms, ["b1", "b2"]), Relaxation.NONE)
+    check.feasible(other)
+    assert solver.n_solves == 2
+
+
+def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
+    """b4 and b5 are each reachable by one arm only; a goal needing b5 in the left hand is impossible."""
+    scene = _tower(["b5"], ["(on b5 goal_region)"])
+    scene = dataclasses.replace(
+        scene,
+        objects=tuple(dataclasses.replace(o, pose=(0.45, 0.25, o.pose[2], 0.0)) for o in scene.objects),
+    )
+    res = plan_gnpp(scene, "gnpp_trn", logic=Logic.INTERNAL, timeout_s=60.0)
+    assert res.status is GnppStatus.INFEASIBLE, res.plan.reason
+    assert not res.plan.success and "infeasible" in res.plan.reason
+    assert res.conflicts  # the learnt conflicts are the proof; each is infeasible on its own
+    lib = FactorLib(pr2, scene)
+    solver = GraphSolver(lib)
+    for c in res.conflict_factors:  # each proof conflict, solved afresh from a neutral start: infeasible
+        start = {v: lib.home_q(v.owner) if v.kind == "q" else lib.start_pose(v.owner) for v in variables(c.factors)}
+        assert not solver.solve(c.factors, start).feasible, str(c)
+    assert res.plan.planning_time_s < 60.0
+
+
+def test_small_tower_plan_is_validated():
+    scene = _tower(["b1", "b2"], ["(on b1 goal_region)", "(on b2 b1)"])
+    res = plan_gnpp(scene, "gnpp_trn", timeout_s=90.0)
+    assert res.status is GnppStatus.SOLVED, res.plan.reason
+    plan = res.plan
+    assert plan.success and plan.validation is not None
+    assert plan.validation.collision_free and plan.validation.goal_met
+    assert len(plan.actions) >= 4 and plan.counters["nlp"] >= 1
+
+
+def test_logic_planners_agree_on_the_compiled_task(b4_setup):
+    """Fast Downward and the internal search solve the same compiled task; both plans avoid the conflict."""
+    _, lib, task, graph, guess = b4_setup
+    from rlgp_exec.planning.gnpp.planner import _logic_plan
+
+    conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
+    seq = to_forbidden(conflict.factors)
+    for logic in Logic:
+        actions, status, why = _logic_plan(task, [seq], logic, 30.0)
+        assert actions is not None, (logic, status, why)
+        states = task.simulate(actions)
+        assert task.is_goal(states[-1]) and not seq.occurs_in(states)
+        assert all(a.args[0] == "left_arm" for a in actions if a.args[1] == "b4")
+
+
+def test_variants_registered():
+    from rlgp_exec.planning.registry import planner_names
+
+    names = set(planner_names())
+    assert {"gnpp", "gnpp_t", "gnpp_tr", "gnpp_trn", "gnpp_trng", "oneway", "gnpp_trn_fd"} <= names
