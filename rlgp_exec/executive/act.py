@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -34,7 +35,7 @@ from rlgp_exec.planning.validate import Phase
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.timing import Streamer, Trajectory
 
-__all__ = ["ActOutcome", "ActStatus", "Actor", "ControlClock", "Signals"]
+__all__ = ["ActOutcome", "ActStatus", "Actor", "ControlClock", "GripperAction", "Signals", "gripper_action"]
 
 log = logging.getLogger(__name__)
 
@@ -288,8 +289,9 @@ class Actor:
                 out = self._follow(traj, k, held, ph, world_check)
                 if out is not None:
                     return out
-            if ph.grasp is not None or ph.release is not None:
-                out2 = self._gripper(ph, k, held)
+            action = gripper_action(phases, k)
+            if action is not None:
+                out2 = self._gripper(action, k, held)
                 if isinstance(out2, ActOutcome):
                     return out2
                 held = out2
@@ -328,8 +330,9 @@ class Actor:
                 v2 = self.stop_motion()
                 return ActOutcome(ActStatus.VIOLATION, k, v2 or v, held)
 
-    def _gripper(self, ph: Phase, k: int, held: str | None) -> ActOutcome | str | None:
-        grasp = ph.grasp is not None
+    def _gripper(self, action: GripperAction, k: int, held: str | None) -> ActOutcome | str | None:
+        """Close on an object or a knob, or open; what the hand holds afterwards (an object's name)."""
+        grasp = action.grasp
         res = self.hal.gripper(GripperCommand.grasp(GRASP_FORCE_N) if grasp else GripperCommand.open())
         if not res:
             return ActOutcome(ActStatus.VIOLATION, k, Violation("gripper", Reaction.FAULT, res.reason), held)
@@ -339,17 +342,40 @@ class Actor:
         if isinstance(w, Violation):
             return ActOutcome(ActStatus.VIOLATION, k, w, held)
         if not grasp:
-            return None
+            return None if not action.knob else held
         st = self._state()
         if isinstance(st, Violation):
             return ActOutcome(ActStatus.VIOLATION, k, st, held)
         if st.gripper <= self.closed + EMPTY_GRASP_MARGIN:
             self.hal.gripper(GripperCommand.open())
             self._wait(GRIPPER_S)
+            what = f"the knob of {action.target!r}" if action.knob else repr(action.target)
             return ActOutcome(
                 ActStatus.VIOLATION,
                 k,
-                Violation("grasp", Reaction.REPLAN, f"closed on nothing when grasping {ph.grasp!r}"),
+                Violation("grasp", Reaction.REPLAN, f"closed on nothing when grasping {what}"),
                 None,
             )
-        return ph.grasp
+        return held if action.knob else action.target
+
+
+class GripperAction(NamedTuple):
+    grasp: bool  # close with a force limit (else open)
+    target: str  # the object, or the cabinet whose knob
+    knob: bool
+
+
+def gripper_action(phases: list[Phase], k: int) -> GripperAction | None:
+    """What the gripper does when phase ``k`` ends: grasp/release an object (``grasp``/``release``),
+    take a knob (the phase reaches a knob and the next one drives the drawer), let go of it (the phase
+    drove the drawer), or nothing."""
+    ph = phases[k]
+    if ph.grasp is not None:
+        return GripperAction(True, ph.grasp, False)
+    if ph.release is not None:
+        return GripperAction(False, ph.release, False)
+    if ph.knob is not None and ph.drives_drawer:
+        return GripperAction(False, ph.knob, True)
+    if ph.knob is not None and k + 1 < len(phases) and phases[k + 1].drives_drawer:
+        return GripperAction(True, ph.knob, True)
+    return None

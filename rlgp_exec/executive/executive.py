@@ -21,7 +21,7 @@ from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.states import ExecState, StateMachine
-from rlgp_exec.executive.world import ObjectSource, update_scene
+from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
 from rlgp_exec.planning.plan import Plan
@@ -36,6 +36,7 @@ __all__ = ["Executive", "TaskResult", "TaskStatus"]
 log = logging.getLogger(__name__)
 S = ExecState
 PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before INFEASIBLE
+DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
 
 
 class TaskStatus(enum.Enum):
@@ -114,6 +115,7 @@ class Executive:
             self.sm.listeners.append(lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall))
         self.actor = Actor(hal, self.signals, recorder, period, self.tol)
         self.held: str | None = None
+        self.openings: dict[str, float] = {}  # [m] sensed drawer openings
         self.last_plan: Plan | None = None
 
     # ------------------------------------------------------------------ requests (any thread)
@@ -169,6 +171,7 @@ class Executive:
                 "/detections", {"source": type(self.objects).__name__, "poses": {n: T for n, T in poses.items()}}
             )
         self.scene = update_scene(self.scene, self.model, st, poses, self.held)
+        self.openings = drawer_openings(self.scene, poses)
         if self.recorder is not None:
             self.recorder.write("/scene", scene_to_dict(self.scene))
         return self.scene
@@ -188,7 +191,9 @@ class Executive:
 
     def _unmet(self, goal: Goal) -> list[str]:
         poses = {o.name: o.T for o in self.scene.objects}
-        return [why for lit in goal.literals for ok, why in [goal_holds(self.scene, lit, poses)] if not ok]
+        return [
+            why for lit in goal.literals for ok, why in [goal_holds(self.scene, lit, poses, self.openings)] if not ok
+        ]
 
     def _time(self, plan: Plan) -> list[Trajectory | None]:
         limits = self.model.limits.scaled(*TRACKING_HEADROOM)
@@ -283,6 +288,9 @@ class Executive:
                     return result(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)")
                 if self.held is not None:
                     raise _FaultError(f"holding {self.held!r}: this build replans only with an empty hand")
+                open_now = {c: round(o, 3) for c, o in self.openings.items() if o > DRAWER_CLOSED_M}
+                if open_now and attempt > 0:
+                    raise _FailedError(f"drawers open {open_now} [m]: the planners start from closed drawers")
                 self.sm.to(S.PLANNING, f"attempt {attempt + 1}")
                 scene = replace(self.scene, goal=goal)
                 from rlgp_exec.planning.registry import plan as run_planner

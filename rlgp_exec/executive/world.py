@@ -220,11 +220,12 @@ def update_scene(
     if state is not None:
         joints = dict(scene.robot.joints)
         arm = model.manipulator().group
-        for i in model.group(arm):
+        lo, hi = model.limits.lower, model.limits.upper
+        for i in model.group(arm):  # inside the limits (a measurement may sit a hair outside), to 0.1 mrad
             n = model.joint_names[i]
             if n in state.names:
-                joints[n] = float(state.position(n))
-        x, y, yaw = (float(b) for b in state.base)
+                joints[n] = round(float(np.clip(state.position(n), lo[i], hi[i])), 4)
+        x, y, yaw = (round(float(b), 4) for b in state.base)
         s = replace(s, robot=replace(scene.robot, base=(x, y, yaw), joints=joints))
 
     def fail(where: str, msg: str) -> SceneError:
