@@ -95,11 +95,13 @@ class DrawerView:
 
     def holds(self, T_world_obj: FloatArray, size: tuple[float, float, float], opening: float) -> tuple[bool, str]:
         """Is an object (centre pose, full extents) in the drawer: its centre over the interior and its
-        bottom on the floor (within IN_TOLERANCE)?"""
+        lowest point on the floor (within IN_TOLERANCE), upright or not?"""
         inner = self.geometry.inner_box
         T_in = self.T_world_drawer(opening) @ inner.T
         local = np.linalg.solve(T_in, T_world_obj[:, 3])
-        bottom = float(T_world_obj[2, 3] - size[2] / 2) - self.floor_z(opening)
+        # the lowest point of the object's box, whatever its attitude (a dropped block may lie on its side)
+        half_z = float(np.abs(T_world_obj[2, :3]) @ (np.asarray(size, float) / 2))
+        bottom = float(T_world_obj[2, 3] - half_z) - self.floor_z(opening)
         ok = (
             abs(local[0]) <= inner.size[0] / 2
             and abs(local[1]) <= inner.size[1] / 2
