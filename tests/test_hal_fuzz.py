@@ -226,6 +226,12 @@ def can_rig() -> Iterator[tuple[object, can.BusABC, object]]:
     hal.configure()
     assert hal.wait_for_robot(10.0)
     hal.activate()
+    # this rig tests frame rejection: a 2 s master-heartbeat timeout keeps a loaded CI machine's late
+    # heartbeat (100 ms in can_nodes.toml) from quick-stopping the drives mid-example; the watchdog
+    # itself is tested with the real timeout below (test_can_drives_quick_stop_when_the_master_goes_silent)
+    with server.lock:
+        for d in server.drives.values():
+            d.consumer = (d.consumer & 0xFFFF0000) | 2000
     fuzzer = can.Bus(interface="virtual", channel=ch)
     yield server, fuzzer, hal
     fuzzer.shutdown()
@@ -325,3 +331,29 @@ def test_can_master_rejects_bad_feedback_frames(can_rig, cob, data):
     assert _wait(lambda: hal.rejects.total == before + 1), (hex(cob), data, hal.rejects.counts())
     st_ = hal.read_state()
     assert st_ is not None and np.all(np.isfinite(st_.q))
+
+
+def test_can_drives_quick_stop_when_the_master_goes_silent():
+    """The drives' consumer heartbeat (can_nodes.toml's timeout, written by SDO at configure): when the
+    master's heartbeat stops, every enabled drive quick-stops and the robot reports the fault."""
+    from rlgp_exec.hal import make_backend
+    from sim.robot_server_can import CanRobotServer
+
+    ch = f"silent-{uuid.uuid4().hex}"
+    sim = SimRobot("hsr")
+    server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
+    server.start()
+    hal = make_backend("can", bus=can.Bus(interface="virtual", channel=ch))
+    try:
+        hal.configure()
+        assert hal.wait_for_robot(10.0)
+        hal.activate()
+        time.sleep(0.3)
+        assert not sim.estopped
+        hal._periodic.stop()  # the master's heartbeat producer dies (the executive hangs)
+        assert _wait(lambda: sim.estopped, timeout=2.0)
+        assert any("master heartbeat lost" in f for f in sim.faults), sim.faults
+    finally:
+        hal.shutdown()
+        server.stop()
+        sim.close()
