@@ -374,3 +374,19 @@ def test_table_clearing_executes_in_physics_knob_drawer_and_drops(tmp_path):
             assert ok, why
     finally:
         hal.shutdown()
+
+
+def test_an_unreachable_goal_object_ends_infeasible_without_moving():
+    scene = load_scene(ROOT / "tests" / "data" / "unreachable_hsr.toml")
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    try:
+        ex = Executive(hal, scene, SimMocap(hal))
+        t0 = time.perf_counter()
+        result = ex.run()
+        assert result.status is TaskStatus.INFEASIBLE, result.detail
+        assert time.perf_counter() - t0 < 240
+        assert result.time_to_first_motion_s is None and hal.lifecycle is Lifecycle.INACTIVE
+        assert ex.sm.state is ExecState.IDLE
+    finally:
+        hal.shutdown()

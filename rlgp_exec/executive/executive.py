@@ -35,15 +35,15 @@ __all__ = ["Executive", "TaskResult", "TaskStatus"]
 
 log = logging.getLogger(__name__)
 S = ExecState
-PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before INFEASIBLE
+PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before giving up
 DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
 
 
 class TaskStatus(enum.Enum):
     SUCCEEDED = "succeeded"  # goal verified in the sensed world (or, without sensing, executed as planned)
     INVALID_GOAL = "invalid_goal"
-    INFEASIBLE = "infeasible"  # the planner found no valid plan
-    FAILED = "failed"  # replans exhausted, timing failed, or the goal does not hold after execution
+    INFEASIBLE = "infeasible"  # the planner proved there is no plan (an unreachable object, a conflict)
+    FAILED = "failed"  # no plan found in time, replans exhausted, timing failed, goal not met after execution
     CANCELLED = "cancelled"
     ESTOPPED = "estopped"
     FAULT = "fault"
@@ -315,7 +315,7 @@ class Executive:
                     )
                 if not plan.success:
                     self.sm.to(S.IDLE, "no plan")
-                    return result(TaskStatus.INFEASIBLE, f"{self.planner}: {plan.reason}")
+                    return result(_plan_failure(plan.reason), f"{self.planner}: {plan.reason}")
                 actions = plan.actions
                 trajectories = self._time(plan)
                 self.sm.to(S.EXECUTING, " ".join(plan.actions))
@@ -382,6 +382,16 @@ class Executive:
                 log.warning("deactivate during fault: %s", e)
         if self.sm.state is not S.FAULT:
             self.sm.to(S.FAULT, why)
+
+
+def _plan_failure(reason: str) -> TaskStatus:
+    """The planners' reasons start with what kind of failure it is: a proof ("infeasible: ..."), a bad goal
+    ("invalid goal: ...") or neither (a time budget spent, candidates exhausted): then it simply failed."""
+    if reason.startswith("invalid goal"):
+        return TaskStatus.INVALID_GOAL
+    if reason.startswith("infeasible"):
+        return TaskStatus.INFEASIBLE
+    return TaskStatus.FAILED
 
 
 class _FaultError(Exception):
