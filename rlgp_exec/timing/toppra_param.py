@@ -256,12 +256,19 @@ def time_parameterize(
     if p.shape[0] == 1:  # nothing moves
         traj = Trajectory(limits.names, limits, (_Hold(p[0]),), (Segment(PhaseKind.MOTION, 0.0, 0.0),))
         return TimingResult(TimingStatus.OK, "no motion", traj, (time.perf_counter() - t0) * 1e3)
-    corners = cusps(p)
-    if corners:  # stop at each sharp corner: no smooth path passes it, and a spline through it overshoots
+    res = _time_path(p, limits, base=_has_base(limits), gridpoints=gridpoints, t0=t0)
+    corners = cusps(p) if res.status in (TimingStatus.INFEASIBLE, TimingStatus.NUMERICAL) else []
+    if corners:  # a path reversing at a waypoint (a vertical approach then leave) has no smooth timing
+        # through that corner: stop there, i.e. time the pieces between sharp corners rest-to-rest
         cuts = [0, *corners, p.shape[0] - 1]
         return time_parameterize_phases(
             [(PhaseKind.MOTION, p[a : b + 1]) for a, b in itertools.pairwise(cuts)], limits, gridpoints=gridpoints
         )
+    return res
+
+
+def _time_path(p: FloatArray, limits: JointLimits, *, base: bool, gridpoints: int, t0: float) -> TimingResult:
+    """TOPPRA on one PCHIP path through the (deduplicated, unwrapped) waypoints ``p`` (T, N)."""
     chord = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
     spline_path = PchipPath(chord / chord[-1], p)
     ss = np.linspace(0.0, 1.0, 2001)
@@ -274,7 +281,6 @@ def time_parameterize(
             f"the interpolated path leaves the position limits of {bad}",
             compute_ms=(time.perf_counter() - t0) * 1e3,
         )
-    base = _has_base(limits)
     try:
         spline = _solve(spline_path, limits, base, gridpoints)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
