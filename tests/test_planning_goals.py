@@ -72,3 +72,12 @@ def test_an_order_forced_by_reachability_is_found_and_the_other_order_fails():
     assert plan.success, plan.reason
     assert plan.validation is not None and plan.validation.collision_free and plan.validation.goal_met
     assert plan.actions == ("(pick box)", "(place box tray_box)", "(pick block)", "(place block tray_block)")
+
+
+def test_a_goal_that_already_holds_is_an_empty_valid_plan(tmp_path):
+    src = (ROOT / "data" / "shelf_hsr.toml").read_text()
+    path = tmp_path / "already.toml"
+    path.write_text(src.replace('literals = ["(on block tray)"]', 'literals = ["(on block table)"]'))
+    plan = plan_scene(load_scene(path))
+    assert plan.success and plan.actions == () and plan.reason == "the goal already holds"
+    assert plan.validation is not None and plan.validation.goal_met
