@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY, encode_poses
+from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
@@ -167,7 +167,7 @@ class ZenohRobotServer:
             with self.lock:
                 poses = {n: self.sim.object_pose(n) for n in self.sim.objects}
                 poses.update({f"{c}{DRAWER_SUFFIX}": self.sim.drawer_pose(c) for c in self.sim.cabinets})
-            self._pubs["mocap"].put(encode_poses(st.stamp, poses))
+            self._pubs["mocap"].put(rc.encode_transforms(st.stamp, poses))
 
     # ------------------------------------------------------------------ commands
     def _guard(self, topic: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:

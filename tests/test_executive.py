@@ -390,3 +390,27 @@ def test_an_unreachable_goal_object_ends_infeasible_without_moving():
         assert ex.sm.state is ExecState.IDLE
     finally:
         hal.shutdown()
+
+
+def test_mocap_transforms_round_trip_and_bad_payloads_are_named():
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.hal import ros_codec as rc
+
+    rng = np.random.default_rng(0)
+    poses = {}
+    for name in ("block", "cabinet.drawer"):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+        T[:3, 3] = rng.uniform(-2, 2, 3)
+        poses[name] = T
+    back = rc.parse_transforms(rc.encode_transforms(1.5, poses))
+    assert set(back) == set(poses)
+    assert all(np.allclose(back[n], poses[n], atol=1e-9) for n in poses)
+    with pytest.raises(RlgpError, match="TFMessage"):
+        rc.parse_transforms(b"\x00\x01\x00\x00garbage")
+    bad = dict(poses)
+    bad["block"] = poses["block"].copy()
+    bad["block"][0, 3] = np.nan
+    with pytest.raises(RlgpError, match="bad transform for 'block'"):
+        rc.parse_transforms(rc.encode_transforms(0.0, bad))

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.hal.ros_codec import parse_transforms
 from rlgp_exec.hal.types import RobotState
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
@@ -38,7 +39,6 @@ __all__ = [
     "SimMocap",
     "ZenohMocap",
     "drawer_openings",
-    "encode_poses",
     "update_scene",
 ]
 
@@ -87,50 +87,6 @@ class SimMocap(ObjectSource):
         return poses
 
 
-def encode_poses(stamp: float, poses: dict[str, FloatArray]) -> bytes:
-    """A TFMessage (CDR) with one transform per object, parent frame "map"."""
-    from scipy.spatial.transform import Rotation
-
-    from rlgp_exec.hal.ros_codec import _header, _ser, _t
-
-    tfs = []
-    for name, T in poses.items():
-        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-        tfs.append(
-            _t("geometry_msgs/msg/TransformStamped")(
-                header=_header(stamp, "map"),
-                child_frame_id=name,
-                transform=_t("geometry_msgs/msg/Transform")(
-                    translation=_t("geometry_msgs/msg/Vector3")(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
-                    rotation=_t("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w),
-                ),
-            )
-        )
-    return _ser(_t("tf2_msgs/msg/TFMessage")(transforms=tfs), "tf2_msgs/msg/TFMessage")
-
-
-def decode_poses(payload: bytes) -> dict[str, FloatArray]:
-    """Decode a TFMessage; raises RlgpError naming what is wrong (bad CDR, non-finite, bad quaternion)."""
-    from scipy.spatial.transform import Rotation
-
-    from rlgp_exec.hal import ros_codec as rc
-
-    msg = rc.decode(payload, "tf2_msgs/msg/TFMessage")
-    if isinstance(msg, rc.Rejected):
-        raise RlgpError(f"mocap: {msg.reason}")
-    out = {}
-    for tf in msg.transforms:
-        tr, q = tf.transform.translation, tf.transform.rotation
-        v = np.array([tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w], float)
-        if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
-            raise RlgpError(f"mocap: bad transform for {tf.child_frame_id!r}: {v.tolist()}")
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
-        T[:3, 3] = v[:3]
-        out[str(tf.child_frame_id)] = T
-    return out
-
-
 class ZenohMocap(ObjectSource):
     """Subscribes to ``MOCAP_KEY`` (prefixed by ``namespace``) on an open Zenoh session."""
 
@@ -145,10 +101,10 @@ class ZenohMocap(ObjectSource):
 
     def _on_sample(self, sample: Any) -> None:
         try:
-            poses = decode_poses(sample.payload.to_bytes())
+            poses = parse_transforms(sample.payload.to_bytes())
         except RlgpError as e:
             self.rejected += 1
-            log.warning("%s", e)
+            log.warning("mocap: %s", e)
             return
         with self._lock:
             self._poses, self._wall = poses, time.monotonic()

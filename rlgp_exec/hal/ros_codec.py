@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rlgp_exec.hal.types import JointSetpoint
+from rlgp_exec.hal.types import FloatArray, HalError, JointSetpoint
 
 __all__ = [
     "MAX_PAYLOAD",
@@ -28,10 +28,12 @@ __all__ = [
     "encode_odometry",
     "encode_string",
     "encode_trajectory",
+    "encode_transforms",
     "encode_twist",
     "parse_joint_state",
     "parse_odometry",
     "parse_trajectory",
+    "parse_transforms",
     "parse_twist",
 ]
 
@@ -218,3 +220,44 @@ def parse_twist(payload: bytes) -> tuple[float, float, float] | Rejected:
     if any(abs(c) > 1e-9 for c in (m.linear.z, m.angular.x, m.angular.y)):
         return Rejected("invalid", "Twist: a planar base takes linear.x, linear.y and angular.z only")
     return v
+
+
+def encode_transforms(stamp: float, T_parent_child: dict[str, FloatArray], parent: str = "map") -> bytes:
+    """tf2_msgs/TFMessage: one transform (4, 4) per child frame, all from ``parent``."""
+    from scipy.spatial.transform import Rotation
+
+    tfs = []
+    for name, T in T_parent_child.items():
+        x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+        tfs.append(
+            _t("geometry_msgs/msg/TransformStamped")(
+                header=_header(stamp, parent),
+                child_frame_id=name,
+                transform=_t("geometry_msgs/msg/Transform")(
+                    translation=_vec3(float(T[0, 3]), float(T[1, 3]), float(T[2, 3])),
+                    rotation=_t("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w),
+                ),
+            )
+        )
+    return _ser(_t("tf2_msgs/msg/TFMessage")(transforms=tfs), "tf2_msgs/msg/TFMessage")
+
+
+def parse_transforms(payload: bytes) -> dict[str, FloatArray]:
+    """The (4, 4) transforms of a TFMessage by child frame; raises HalError naming what is wrong (bad CDR,
+    a non-finite value, a quaternion that is not unit length)."""
+    from scipy.spatial.transform import Rotation
+
+    msg = decode(payload, "tf2_msgs/msg/TFMessage")
+    if isinstance(msg, Rejected):
+        raise HalError(f"TFMessage: {msg.reason}")
+    out = {}
+    for tf in msg.transforms:
+        tr, q = tf.transform.translation, tf.transform.rotation
+        v = np.array([tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w], float)
+        if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
+            raise HalError(f"TFMessage: bad transform for {tf.child_frame_id!r}: {v.tolist()}")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
+        T[:3, 3] = v[:3]
+        out[str(tf.child_frame_id)] = T
+    return out

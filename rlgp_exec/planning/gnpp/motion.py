@@ -47,23 +47,31 @@ def phases_of(
     def full() -> FloatArray:
         return lib.full_q(cur)
 
+    def lift_low(path: list[FloatArray], active: str | None, where: str) -> str | None:
+        """Raise every arm left down at its last keyframe (appending to ``path``); with an ``active`` arm
+        about to act, the other idle arms also go home. The reason on failure."""
+        for arm in arms:
+            if low[arm]:
+                up = _lift(lib, ik, arm, cur[arm])
+                if up is None:
+                    return f"cannot lift {arm} after {where}"
+                cur[arm] = up
+                path.append(full())
+                low[arm] = False
+                if active is not None and arm != active and arm not in holding:
+                    cur[arm] = lib.home_q(arm)
+                    path.append(full())
+        return None
+
     for k, a in enumerate(actions):
         m, obj = a.args[0], a.args[1]
         v = Var("q", m, k + 1)
         if v not in values:
             return f"no keyframe for {a}"
         path = [full()]
-        for arm in arms:
-            if low[arm]:
-                up = _lift(lib, ik, arm, cur[arm])
-                if up is None:
-                    return f"cannot lift {arm} after its last action (before {a})"
-                cur[arm] = up
-                path.append(full())
-                low[arm] = False
-                if arm != m and arm not in holding:
-                    cur[arm] = lib.home_q(arm)
-                    path.append(full())
+        why = lift_low(path, m, f"its last action (before {a})")
+        if why is not None:
+            return why
         q_k = values[v]
         pre = _lift(lib, ik, m, q_k)
         if pre is None:
@@ -82,13 +90,9 @@ def phases_of(
             phases.append(Phase(np.array(path), obj, release=obj, arm=m, carried=carried))
             holding.pop(m, None)
     path = [full()]
-    for arm in arms:
-        if low[arm]:
-            up = _lift(lib, ik, arm, cur[arm])
-            if up is None:
-                return f"cannot lift {arm} after the last action"
-            cur[arm] = up
-            path.append(full())
+    why = lift_low(path, None, "the last action")
+    if why is not None:
+        return why
     carried = tuple(holding.items())
     phases.append(Phase(np.array(path), None, carried=carried))
     return tuple(phases), np.array(keyframes).reshape(len(keyframes), -1)
