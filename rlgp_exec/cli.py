@@ -329,9 +329,13 @@ def cmd_perceive(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- demo
 def cmd_demo(args: argparse.Namespace) -> int:
-    from rlgp_exec.demo import run_demo
+    from rlgp_exec.demo import DEMO_SCENE, DEMO_SCENES, run_demo
 
-    report = run_demo(Path(args.out))
+    scene = args.scene or DEMO_SCENE
+    if scene not in DEMO_SCENES:
+        print(f"rlgp-exec demo: unknown scene {scene!r}; valid: {list(DEMO_SCENES)}", file=sys.stderr)
+        return 2
+    report = run_demo(Path(args.out), seed=args.seed, scene_name=scene)
     print(report.text())
     return 0 if report.ok else 1
 
@@ -446,6 +450,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="the headless dry run behind `make demo`")
     s.add_argument("--out", default="out")
+    s.add_argument("--scene", default=None, help="an HSR scene with tagged objects (default: the demo's)")
+    s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
     s.set_defaults(func=cmd_demo)
     return ap
 

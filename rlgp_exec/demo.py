@@ -22,11 +22,12 @@ from pathlib import Path
 
 from rlgp_exec.errors import RlgpError
 
-__all__ = ["DemoReport", "Stage", "run_demo"]
+__all__ = ["DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
 
 log = logging.getLogger(__name__)
 
 DEMO_SCENE = "sorting_hsr"
+DEMO_SCENES = ("table_clearing_hsr", "sorting_hsr")  # HSR scenes with tagged objects
 PERTURB_M = 0.04  # [m] how far the true objects are from the file
 
 

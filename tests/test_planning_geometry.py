@@ -97,3 +97,50 @@ def test_the_replay_catches_collisions_and_unmet_goals(scene):
     assert not v.collision_free and any("table_mid" in c for c in v.collisions)
     standing = validate_plan(scene, [Phase(np.array([q0, q0]), None)])
     assert standing.collision_free and not standing.goal_met and len(standing.unmet) == 2
+
+
+def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
+    """The PR2's fingers are meshes (no NLP spheres): the PyBullet keyframe check must see the objects
+    where they stand, or a grasp between close blocks puts a fingertip ~1 cm into the neighbour
+    (pick_place_pr2, randomised seed 2: block_a 8 cm from block_c). Keyframes also stay inside the
+    joint limits (IPOPT's bound relaxation leaves them up to ~1e-8 outside)."""
+    from rlgp_exec.planning.sequence import SequenceGeometry
+    from rlgp_exec.scene.randomize import randomize
+    from sim.world import build_world
+
+    scene = randomize(load_scene(SORTING.parent / "pick_place_pr2.toml"), 2)
+    geo = SequenceGeometry(scene, seed=2)
+    acts = [a for b in ("block_c", "block_a", "block_b") for a in (Action("pick", b), Action("place", b, "tray"))]
+    try:
+        kf = solve_keyframes(
+            geo.model, scene, geo.q0, acts, seed=2, in_collision=geo._in_collision, ik=geo.ik, hand=geo.hand,
+            self_spheres=geo.self_spheres, body=geo.body, lift_room=0.12,
+        )
+    finally:
+        geo.close()
+    assert kf.ok, kf.reason
+    lim = geo.model.limits
+    finite = np.isfinite(lim.lower) & np.isfinite(lim.upper)
+    assert np.all(kf.keyframes[:, finite] >= lim.lower[finite]) and np.all(kf.keyframes[:, finite] <= lim.upper[finite])
+    world = build_world(scene, tags=False)
+    try:
+        world.robot.set_q(kf.keyframes[0])
+        hits = [(c.link, world.body_name(c.other_body)) for c in world.robot.contacts(1e-3)]
+        assert not [h for h in hits if h[1] in ("block_a", "block_b")], hits
+    finally:
+        world.close()
+
+
+def test_finger_spheres_cover_the_whole_finger_box():
+    """Every point of a finger's box lies inside one of its spheres (a sparse row lets a wall's edge
+    slip between them, ~1 cm into the finger)."""
+    from rlgp_exec.planning.nlp.hand import _box_cover
+
+    rng = np.random.default_rng(0)
+    for size in (np.array([0.03, 0.012, 0.11]), np.array([0.2, 0.01, 0.02]), np.array([0.02, 0.02, 0.02])):
+        spheres = _box_cover(size)
+        pts = (rng.uniform(-0.5, 0.5, (4000, 3)) * size)
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * size / 2
+        for x in np.vstack([pts, corners]):
+            assert min(np.linalg.norm(x - c) - r for c, r in spheres) <= 1e-12
+        assert max(r for _, r in spheres) <= 0.75 * float(np.sort(size)[1] + np.sort(size)[0])  # not wildly fat

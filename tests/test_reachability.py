@@ -119,6 +119,35 @@ def test_ompl_plans_a_certified_path_round_the_wall(wall):
     assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
 
 
+def test_ompl_moves_every_joint_that_differs_and_accepts_an_end_a_hair_past_a_limit(wall):
+    """The ends of a guided segment may differ in a joint the graph does not plan (the PR2's torso raised
+    for a vertical approach), and an optimiser's keyframe may sit ~1e-8 past a bound: the path must start and
+    end exactly at the given configurations, every joint included."""
+    _, model, graph, _, checker, _ = wall
+    other = model.index("head_pan_joint")  # (the PR2's torso, in the planner; the HSR plans its lift)
+    assert other not in set(graph.plan_idx.tolist())
+    roll = model.index("wrist_roll_joint")
+
+    def ends(nodes, past_limit: bool):
+        for i in nodes:
+            q = graph.Q[i].copy()
+            if past_limit:
+                q[roll] = model.limits.upper[roll] + 1e-8  # as IPOPT's bound relaxation leaves it
+            else:
+                q[other] += 0.3
+            if not checker(q):
+                return q
+        raise AssertionError("no free end")
+
+    q1 = ends([i for i in graph.alive if graph.X[i][0] < -0.4], True)
+    q2 = ends([i for i in graph.alive if graph.X[i][0] > 0.4], False)
+    path = plan_ompl(checker, graph.plan_idx, q1, q2, np.array([-2.0, -2.0]), np.array([2.0, 2.0]), timeout=5.0)
+    assert path is not None
+    np.testing.assert_allclose(path[0], q1, atol=1e-9)
+    np.testing.assert_allclose(path[-1], q2, atol=1e-9)
+    assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+
+
 def test_a_saved_graph_reloads_identical_and_bad_files_are_refused(wall, tmp_path):
     scene, model, graph, _, _, _ = wall
     meta = graph_meta(model, scene, model.manipulator().name, PARAMS)

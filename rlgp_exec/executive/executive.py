@@ -26,6 +26,7 @@ from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.validate import Phase, goal_holds
+from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene, scene_to_dict
 from rlgp_exec.scene.literals import parse_goal
 from rlgp_exec.scene.types import Goal
@@ -166,10 +167,7 @@ class Executive:
         """Update the world model from the robot's state and the object source."""
         st = self._robot_state()
         poses = self.objects.poses()
-        if self.recorder is not None:
-            self.recorder.write(
-                "/detections", {"source": type(self.objects).__name__, "poses": {n: T for n, T in poses.items()}}
-            )
+        self._record_detections(poses)
         self.scene = update_scene(self.scene, self.model, st, poses, self.held)
         self.openings = drawer_openings(self.scene, poses)
         if self.recorder is not None:
@@ -208,13 +206,22 @@ class Executive:
             out.append(res.trajectory)
         return out
 
+    def _record_detections(self, poses: dict[str, FloatArray]) -> None:
+        if self.recorder is not None:
+            self.recorder.write("/detections", {"source": type(self.objects).__name__, "poses": dict(poses)})
+
     def _world_check(self, plan_scene: Scene):
-        """Before and during a phase that ends in a grasp: is the object still where the plan assumed?"""
+        """Before and during every phase (at the actor's world-check rate), with a sensing source: the
+        sensed poses (objects, drawers) are recorded, so a replay shows the world moving; before and
+        during a phase that ends in a grasp: is the object still where the plan assumed?"""
 
         def check(k: int, ph: Phase, st: RobotState) -> Violation | None:
-            if ph.grasp is None or not self.objects.senses:
+            if not self.objects.senses:
                 return None
             poses = self.objects.poses()
+            self._record_detections(poses)
+            if ph.grasp is None:
+                return None
             T = poses.get(ph.grasp)
             if T is None:
                 return None  # not seen now: go on the last estimate
@@ -301,6 +308,8 @@ class Executive:
                     stats["planning_time_s"] += plan.planning_time_s
                     if plan.success:
                         break
+                    self._event("plan_failed", planner=self.planner, seed=self.seed + 101 * attempt + k,
+                                time_s=plan.planning_time_s, reason=plan.reason)
                 self.last_plan = plan
                 if self.recorder is not None:
                     self.recorder.write(

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from rlgp_exec.executive.recorder import RecordingError, read_recording
+from rlgp_exec.executive.world import drawer_openings
 from rlgp_exec.scene import scene_from_dict
 
 __all__ = ["ReplayReport", "replay"]
@@ -73,9 +74,12 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
         last_xy = None
         for k, (t, st) in enumerate(states):
             while det_i < len(detections) and detections[det_i][0] <= t:
-                for name, T in detections[det_i][1].get("poses", {}).items():
+                sensed = {n: np.asarray(T, float) for n, T in detections[det_i][1].get("poses", {}).items()}
+                for name, T in sensed.items():
                     if name in world.objects:
-                        world.set_object_pose(name, np.asarray(T, float))
+                        world.set_object_pose(name, T)
+                for cabinet, opening in drawer_openings(scene, sensed).items():  # drawers as sensed
+                    world.set_drawer_opening(cabinet, float(np.clip(opening, 0.0, world.cabinets[cabinet].travel)))
                 det_i += 1
             x, y, yaw = st["base"]
             if last_xy is not None:

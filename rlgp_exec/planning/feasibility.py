@@ -4,8 +4,8 @@ solution can grasp where it stands, or set down on its target, makes the task in
 The geometric check runs after the first candidate fails at the geometric levels (a plan that works
 pays nothing for it). It is a relaxation of every grasp and placement: for each goal object not yet
 where the goal wants it, can the tool reach the object's top at all (position IK, no orientation), and
-for an ``on`` goal, the point above the target's centre? No, from eight base headings: infeasible (up to
-the IK's local solver, which the reason names).
+for an ``on`` goal, the point above the target's centre? No, from the graph's nearest nodes and eight
+base headings: infeasible (up to the IK's local solver, which the reason names).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 
 from rlgp_exec.planning.nlp.keyframes import _target_surface
 from rlgp_exec.planning.symbolic.model import GroundProblem
+from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.robot.config import load_robot_config
 from rlgp_exec.scene import Scene
@@ -31,12 +32,22 @@ def goal_manipulator(scene: Scene) -> str:
     return load_robot_config(scene.robot.name).manipulators[0].name
 
 
-def _reachable(ik: ReachIK, x: np.ndarray, starts: int = 8) -> bool:
+def _reachable(
+    ik: ReachIK, x: np.ndarray, graph: ReachabilityGraph | None = None, starts: int = 8, near: int = 5
+) -> bool:
     """Can the tool reach the point x (3,) [m] at all: position IK (Eq. 2: no orientation; the base only
-    kept off the fixtures' footprints, the arm spheres out of them, as every keyframe must) from
-    ``starts`` base headings. No PyBullet check: an IK answer's arbitrary hand would hit what a real
-    grasp avoids, and a relaxation must not reject what the keyframe NLP could solve."""
-    return any(ik.solve(x, ik.guess(x, 2 * math.pi * k / starts)).ok for k in range(starts))
+    kept off the fixtures' footprints, the arm spheres out of them, as every keyframe must), warm-started
+    from the reachability graph's ``near`` nearest nodes (shifted onto x) and from ``starts`` base
+    headings. No PyBullet check: an IK answer's arbitrary hand would hit what a real grasp avoids, and a
+    relaxation must not reject what the keyframe NLP could solve."""
+    inits = []
+    if graph is not None:
+        for j in graph.nearest(x, near):
+            z = ik.z_of(graph.Q[j])
+            z[:2] += x[:2] - graph.X[j][:2]
+            inits.append(z)
+    inits += [ik.guess(x, 2 * math.pi * k / starts) for k in range(starts)]
+    return any(ik.solve(x, z0).ok for z0 in inits)
 
 
 def unreachable_goal(geo, problem: GroundProblem) -> str | None:
@@ -49,12 +60,12 @@ def unreachable_goal(geo, problem: GroundProblem) -> str | None:
             continue
         o = scene.object(atom[1])
         top = np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2])
-        if not _reachable(ik, top):
+        if not _reachable(ik, top, geo.graph):
             return f"infeasible: {o.name} cannot be reached where it is (no position IK reaches {top.round(3)} m)"
         if atom[0] == "on" and atom[2] not in problem_objects(scene):
             T, _, z = _target_surface(scene, atom[2])
             above = np.array([T[0, 3], T[1, 3], z + o.size[2]])
-            if not _reachable(ik, above):
+            if not _reachable(ik, above, geo.graph):
                 where = f"no position IK reaches {above.round(3)} m"
                 return f"infeasible: {atom[2]} cannot be reached to set {o.name} on it ({where})"
     return None

@@ -133,21 +133,40 @@ class SequenceGeometry:
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
         return replace(result, reason=" / ".join(reasons))
 
+    def _graph_seeds(self, x: FloatArray, k: int = 8) -> list[FloatArray]:
+        """Keyframe seeds for a hand target x: the graph's k nearest nodes (collision-free, reaching near
+        x), each with its base shifted by the node's offset from x."""
+        out = []
+        for j in self.graph.nearest(x, k):
+            z = self.ik.z_of(self.graph.Q[j])
+            z[:2] += np.asarray(x)[:2] - self.graph.X[j][:2]
+            out.append(z)
+        return out
+
     def _along_axis(self, q: FloatArray, cabinet: str, distance: float) -> FloatArray:
         """q with the base moved ``distance`` [m] along the cabinet's opening axis (out of it if > 0)."""
         out = q.copy()
         out[:2] += distance * self.drawers[cabinet].axis_world[:2]
         return out
 
-    def _in_collision(self, q: FloatArray, openings: dict[str, float], action: Action) -> bool:
-        """The keyframe check: q penetrates nothing with the drawers at ``openings`` (the fingers may
-        touch the knob of a drawer action's cabinet)."""
+    def _in_collision(
+        self, q: FloatArray, openings: dict[str, float], action: Action, objects: dict[str, FloatArray] | None = None
+    ) -> bool:
+        """The keyframe check, with the drawers at ``openings`` and the ``objects`` (name -> T_world_obj)
+        where they stand: a pick, place or drop keeps CLEARANCE from them and the fixtures; a drawer
+        action only must not penetrate anything (its fingers may touch the knob)."""
         self.checker.set_drawers(openings)
+        self.checker.set_objects([replace(object_box(self.scene.object(m)), T=T) for m, T in (objects or {}).items()])
         self.checker.touch_knob(action.obj if action.name in DRAWER_ACTIONS else None)
         try:
-            return self.checker.penetrates(q)
+            if action.name in DRAWER_ACTIONS:  # the fingers round the knob come close to the drawer front
+                return self.checker.penetrates(q)
+            # a grasp or release keeps the graph's clearance: closing fingers and a real hand's tolerances
+            # must not start it against a wall (the approach from above starts there too)
+            return self.checker(q)
         finally:
             self.checker.touch_knob(None)
+            self.checker.set_objects([])
 
     def _guided(self, q_prev: FloatArray, q_pre: FloatArray, held: str | None, T_tool_obj: FloatArray | None):
         """The guided path q_prev -> q_pre (transport posture, else the graph), or the failure reason."""
@@ -200,6 +219,7 @@ class SequenceGeometry:
             self_spheres=self.self_spheres,
             body=self.body,
             lift_room=APPROACH,
+            seeds=self._graph_seeds,
         )
         empty = np.zeros((0, self.model.nq))
 

@@ -22,6 +22,7 @@ __all__ = ["OMPL_PLANNERS", "plan_ompl"]
 log = logging.getLogger(__name__)
 OMPL_PLANNERS = ("RRTConnect", "PRM")
 OMPL_CLEARANCE = 3 * CLEARANCE  # [m] required of OMPL's states
+REDUCE_STEPS = 20  # OMPL vertex-reduction attempts on a found path
 
 
 _SEEDED: list[bool] = []
@@ -56,13 +57,17 @@ def plan_ompl(
     if planner not in OMPL_PLANNERS:
         raise ValueError(f"unknown OMPL planner {planner!r}; valid: {list(OMPL_PLANNERS)}")
     model = checker.model
-    idx = np.asarray(plan_idx, dtype=int)
     q2 = q1 + model.limits.difference(q2, q1)  # unwrapped next to q1
+    # the graph's joints, and any other that differs between the ends (a lift raised for an approach)
+    differs = np.flatnonzero(np.abs(q2 - q1) > 1e-9)
+    idx = np.union1d(np.asarray(plan_idx, dtype=int), differs).astype(int)
     lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
     for k, i in enumerate(idx):
         if not (np.isfinite(lo[k]) and np.isfinite(hi[k])):  # continuous: one turn around the start
             lo[k], hi[k] = min(q1[i], q2[i]) - math.pi, max(q1[i], q2[i]) + math.pi
     lo[:2], hi[:2] = np.minimum(lo_xy, np.minimum(q1[:2], q2[:2])), np.maximum(hi_xy, np.maximum(q1[:2], q2[:2]))
+    # an end a hair outside a joint limit (an optimiser's bound relaxation) must not void the query
+    lo, hi = np.minimum(lo, np.minimum(q1[idx], q2[idx])), np.maximum(hi, np.maximum(q1[idx], q2[idx]))
     n = idx.size
     space = ob.RealVectorStateSpace(n)
     bounds = ob.RealVectorBounds(n)
@@ -100,8 +105,11 @@ def plan_ompl(
             ss.clear()
         if not ss.solve(timeout / 3) or not ss.haveExactSolutionPath():
             continue
-        ss.simplifySolution()
-        path = model.limits.wrap(np.array([full(s) for s in ss.getSolutionPath().getStates()]))
+        sol = ss.getSolutionPath()
+        # a bounded vertex reduction only (OMPL's full simplify can take seconds with this validity
+        # check); the caller shortcuts the result with the exact edge check
+        og.PathSimplifier(si).reduceVertices(sol, REDUCE_STEPS)
+        path = model.limits.wrap(np.array([full(s) for s in sol.getStates()]))
         if not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path)):
             return path
         log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)

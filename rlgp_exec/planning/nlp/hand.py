@@ -3,9 +3,10 @@
 The arm spheres of ``nlp.factors`` stop at the tool point; an open gripper reaches further sideways
 (the HSR's open fingers span about 25 cm), which is what hits a wall next to an object or the carcass
 above a knob. :func:`finger_spheres` reads the finger links' box collision shapes in PyBullet at the
-nominal configuration (the hand open) and puts three spheres along each box's long axis, in the tool
-frame; :func:`points_clear` keeps them clear of boxes. Links whose shapes are meshes get none (their
-hull is not a box), so for them the NLP stays as it was and the PyBullet check decides.
+nominal configuration (the hand open) and covers each box with a row of spheres along its long axis
+(every point of the box inside one), in the tool frame; :func:`points_clear` keeps them clear of
+boxes. Links whose shapes are meshes get none (their hull is not a box): for them (the PR2's fingers)
+the PyBullet keyframe check decides, with the objects where they stand.
 
 Self-collision proxy (:func:`self_clear`): spheres on the arm kept clear of the link the arm is mounted
 on (the HSR's base cylinder: a low, level arm otherwise rests on it; the PR2's torso: the upper arm
@@ -15,6 +16,7 @@ otherwise swings into it).
 from __future__ import annotations
 
 import itertools
+import math
 
 import casadi as ca
 import numpy as np
@@ -30,6 +32,24 @@ __all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear
 
 SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
 SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
+
+
+def _box_cover(size: FloatArray) -> list[tuple[FloatArray, float]]:
+    """Spheres (centre in the box frame (3,), radius [m]) in a row along a box's long axis that cover
+    the whole box: spaced s <= the cross-section's half diagonal c, radius sqrt((s/2)^2 + c^2), the
+    first and last s/2 from the ends."""
+    long = int(np.argmax(size))
+    length = float(size[long])
+    c = float(np.hypot(*np.delete(size, long))) / 2
+    n = max(1, math.ceil(length / c))
+    s = length / n
+    r = math.hypot(s / 2, c)
+    out = []
+    for j in range(n):
+        centre = np.zeros(3)
+        centre[long] = -length / 2 + s / 2 + j * s
+        out.append((centre, r))
+    return out
 
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
@@ -49,25 +69,23 @@ def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]
                 continue
             size = np.asarray(d[3], float)
             T_shape = T_com @ pose_to_matrix(d[5], d[6])
-            long = int(np.argmax(size))
-            r = float(np.sort(size)[1]) / 2
-            for s in (-0.5, 0.0, 0.5):
-                local = np.zeros(3)
-                local[long] = s * (size[long] - 2 * r)
-                pw = T_shape @ np.r_[local, 1.0]
+            for centre, r in _box_cover(size):
+                pw = T_shape @ np.r_[centre, 1.0]
                 out.append((np.linalg.solve(T_tool, pw)[:3], r))
     return out
 
 
-def points_clear(T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], boxes: list[Box], rows: Rows) -> None:
-    """Every sphere (tool frame) at least its radius from every box."""
+def points_clear(
+    T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], boxes: list[Box], rows: Rows, margin: float = 0.0
+) -> None:
+    """Every sphere (tool frame) at least its radius (plus ``margin`` [m]) from every box."""
     for b in boxes:
         Tinv = np.linalg.inv(b.T)
         half = np.asarray(b.size) / 2
         for c, r in spheres:
             pw = T_tool[:3, :3] @ ca.DM(c) + T_tool[:3, 3]
             pl = ca.DM(Tinv[:3, :3]) @ pw + ca.DM(Tinv[:3, 3])
-            rows.add(box_sdf(pl, half), r, ca.inf)
+            rows.add(box_sdf(pl, half), r + margin, ca.inf)
 
 
 def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:

@@ -41,7 +41,7 @@ from rlgp_exec.planning.nlp.factors import (
 )
 from rlgp_exec.planning.nlp.hand import points_clear, self_clear
 from rlgp_exec.planning.nlp.poses import object_poses_after
-from rlgp_exec.reach.ik import ReachIK
+from rlgp_exec.reach.ik import ReachIK, base_circles
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
@@ -54,6 +54,7 @@ W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: o
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
+HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 DROP_GAP = 0.02  # [m] between objects placed on one target or dropped into one drawer (footprint circles)
@@ -112,6 +113,56 @@ def _target_surface(scene: Scene, target: str) -> tuple[FloatArray, tuple[float,
     return T, (fx.size[0] / 2, fx.size[1] / 2), float(T[2, 3])
 
 
+def _free_heading(ik: ReachIK, x: FloatArray, rng: np.random.Generator, rects, tries: int = 24) -> float:
+    """A random base heading [rad] for reaching x whose initial base (``ik.guess``) stands off every
+    footprint rectangle in ``rects`` ((T, size): fixtures, open drawers) by the base's radius; any
+    heading if none does."""
+    for _ in range(tries):
+        yaw = rng.uniform(-math.pi, math.pi)
+        if _base_free(ik, ik.guess(x, yaw), rects):
+            return yaw
+    return rng.uniform(-math.pi, math.pi)
+
+
+def _graph_seed(ik: ReachIK, x: FloatArray, seeds, rects, i: int) -> FloatArray | None:
+    """The i-th of ``seeds(x)`` (z (n,) near x, nearest first) whose base stands off the footprints in
+    ``rects`` (open drawers included); None when there are not that many."""
+    if seeds is None:
+        return None
+    free = [z for z in seeds(x) if _base_free(ik, z, rects)]
+    return free[i] if i < len(free) else None
+
+
+def _base_free(ik: ReachIK, z: FloatArray, rects) -> bool:
+    """The base of z stands off every footprint rectangle in ``rects`` by its radius."""
+    radius = max(math.hypot(cx, cy) + r for cx, cy, r in base_circles(ik.model))
+    return all(_rect_distance(z[:2], T, size) > radius for T, size in rects)
+
+
+def _ik_seed(ik: ReachIK, x: FloatArray, z0: FloatArray, rects) -> FloatArray:
+    """Position IK for x from z0, when its base stays off ``rects`` (the IK knows only the fixtures, not
+    an open drawer); else z0 itself."""
+    r = ik.solve(x, z0)
+    z = ik.z_of(r.q)
+    return z if r.ok and _base_free(ik, z, rects) else z0
+
+
+def _rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
+    """Distance [m] from a point to a footprint rectangle (T_world_rect (4, 4), full size (>= 2,))."""
+    local = T[:2, :2].T @ (np.asarray(xy) - T[:2, 3])
+    return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2]) / 2, 0.0)))
+
+
+def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatArray]) -> dict[str, FloatArray]:
+    """The objects that are obstacles at action a's keyframe (T_world_obj): all but the one being
+    grasped, set down or dropped (in or round the open hand), where they stand before the action; for
+    open/close_drawer, whose keyframe is the end of the motion, where they stand after it (what lies in
+    the drawer moved with it)."""
+    if a.name in ("open_drawer", "close_drawer"):
+        return dict(after)
+    return {m: T for m, T in before.items() if not (a.name in ("pick", "place", "drop") and m == a.obj)}
+
+
 def solve_keyframes(
     model: RobotModel,
     scene: Scene,
@@ -119,23 +170,27 @@ def solve_keyframes(
     actions: list[Action],
     manipulator: str | None = None,
     seed: int = 0,
-    in_collision: Callable[[FloatArray, dict[str, float], Action], bool] | None = None,
+    in_collision: Callable[[FloatArray, dict[str, float], Action, dict[str, FloatArray]], bool] | None = None,
     max_tilt: float = 0.0,
     ik: ReachIK | None = None,
     hand: Sequence[tuple[FloatArray, float]] = (),
     self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
     body: Sequence[tuple[str, Box]] = (),
     lift_room: float = 0.0,
+    seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
 ) -> KeyframeResult:
-    """Solve the keyframe NLP (several initial guesses); ``in_collision(q)`` (the full PyBullet check,
-    self-collisions included, which the NLP's shapes do not model; it gets the drawers' openings [m]
-    at that keyframe and the action too) rejects a solution. ``max_tilt`` [rad]: how far from
+    """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
+    (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
+    model; it gets the drawers' openings [m] at that keyframe, the action, and the objects that are
+    obstacles there, T_world_obj where they stand) rejects a solution. ``max_tilt`` [rad]: how far from
     vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
     ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
     ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
     (``nlp.hand.body_obstacles``).
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
+    ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
+    nodes near x, nearest first); every other start uses them, the rest a random free base heading.
     After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
     t0 = time.perf_counter()
     objs = {o.name: o for o in scene.objects}
@@ -160,6 +215,7 @@ def solve_keyframes(
     poses: dict[str, FloatArray] = {name: o.T.copy() for name, o in objs.items()}
     openings = {c: 0.0 for c in drawers}
     opening_at: list[dict[str, float]] = []  # the drawers' openings at each keyframe
+    footprints_at: list[list[tuple[FloatArray, FloatArray]]] = []  # (T, size) the base must avoid, per keyframe
     moved: set[str] = set()
     set_down: dict[str, list[tuple[str, ca.SX, float]]] = {}  # target -> (object, its x y, radius [m])
     held: str | None = None
@@ -189,12 +245,16 @@ def solve_keyframes(
         self_clear(model, rs.q, list(self_spheres), list(body), rows)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
-            points_clear(rs.T_tool, list(hand), fixture_bx + finger_bx + still_bx, rows)
+            # the open fingers keep the graph's clearance (and a little) from fixtures and standing objects:
+            # the vertical approach from above then starts from a configuration the graph accepts
+            points_clear(rs.T_tool, list(hand), fixture_bx + still_bx, rows, margin=HAND_MARGIN)
+            points_clear(rs.T_tool, list(hand), finger_bx, rows)  # the drawers: knob grasps come close
         labels += [f"{a} clearance"] * (len(rows.g) - n0)
         n0 = len(rows.g)
         open_rects = [(v.T_world_drawer(openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
                       for c, v in drawers.items() if openings[c] > 0.0]
         footprint_clear(rs, fixture_rects + open_rects, rows, margin=BASE_MARGIN)
+        footprints_at.append(fixture_rects + open_rects)
         labels += [f"{a} base footprint"] * (len(rows.g) - n0)
         opening_at.append(dict(openings))
         n0 = len(rows.g)
@@ -209,8 +269,11 @@ def solve_keyframes(
             if held is not None or knob is not None:
                 raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
             o = objs[a.obj]
-            grasp_fn = grasp_top_round if o.shape == "cylinder" else grasp_top
-            tilts.append(grasp_fn(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
+            if o.shape == "cylinder":  # a leaning hand touches a round side at two points only: the
+                # object pivots about them as the fingers close (seen in physics: a cup tipped ~30 deg)
+                tilts.append(grasp_top_round(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
+            else:  # flat faces: the pads stay vertical (closing axis horizontal), the box stays upright
+                tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held = a.obj
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
@@ -243,6 +306,7 @@ def solve_keyframes(
         if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
             rows.add(Z[3, k], -ca.inf, float(ik.hi[3]) - lift_room)
         labels += [f"{a} {KIND[a.name]}"] * (len(rows.g) - n0)
+    sizes = {m: o.size for m, o in objs.items()}
     z0 = ca.DM(ik.z_of(q_start))
     cost = 0
     prev = z0
@@ -251,7 +315,13 @@ def solve_keyframes(
         cost += W_BASE * ca.sumsqr(d[:2]) + W_BASE * d[2] ** 2 + ca.sumsqr(d[3:])
         prev = Z[:, k]
     cost += W_TILT * sum(tilts)
-    nlp = {"x": ca.vec(Z), "f": cost, "g": ca.vertcat(*rows.g)}
+    # two stages per start (parameters, one solver): feasibility near the initial guess (each keyframe's
+    # own IK seed), then the motion cost from there; a seed's basin is kept even when the motion cost
+    # alone would pull a keyframe towards its neighbours' side of an obstacle
+    w_motion, w_seed, Z_seed = ca.SX.sym("w_motion"), ca.SX.sym("w_seed"), ca.SX.sym("z_seed", n * K)
+    d_seed = ca.vec(Z) - Z_seed
+    objective = w_motion * cost + w_seed * ca.sumsqr(d_seed)
+    nlp = {"x": ca.vec(Z), "p": ca.vertcat(w_motion, w_seed, Z_seed), "f": objective, "g": ca.vertcat(*rows.g)}
     solver = ca.nlpsol(
         "keyframes",
         "ipopt",
@@ -260,6 +330,17 @@ def solve_keyframes(
     )
     lbx = np.tile(ik.lo, K)
     ubx = np.tile(ik.hi, K)
+    lbg, ubg = np.asarray(rows.lower), np.asarray(rows.upper)
+    f_motion = ca.Function("f_motion", [ca.vec(Z)], [cost])
+
+    def solve(x0: FloatArray, w_m: float, w_s: float, z_seed: FloatArray) -> tuple[dict, float, str]:
+        """One IPOPT run: (result, largest constraint violation, the worst row's label)."""
+        r = solver(x0=x0, p=np.r_[w_m, w_s, z_seed], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        g = np.asarray(r["g"]).reshape(-1)
+        over = np.maximum(lbg - g, g - ubg)
+        v = float(np.max(np.r_[over, 0.0]))
+        return r, v, (labels[int(np.argmax(over))] if g.size else "")
+
     best = None
     keep: dict[int, FloatArray] = {}  # keyframes of a rejected solution that PyBullet accepted
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
@@ -275,39 +356,43 @@ def solve_keyframes(
                 z[:2] += moved_m * drawers[a.obj].axis_world[:2]
                 init.append(z)
                 continue
-            yaw = rng.uniform(-math.pi, math.pi)
-            r = ik.solve(x, ik.guess(x, yaw))
-            z = ik.z_of(r.q) if r.ok else ik.guess(x, yaw)
+            z_near = _graph_seed(ik, x, seeds, footprints_at[k], _attempt // 2) if _attempt % 2 == 0 else None
+            if z_near is None:  # else a reachability-graph node near the target, shifted onto it
+                z_near = ik.guess(x, _free_heading(ik, x, rng, footprints_at[k]))
+            z = _ik_seed(ik, x, z_near, footprints_at[k])
             if _attempt % 2 == 1:  # the grasp's roll: a quarter turn of the wrist on every other start
                 z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
             init.append(z)
-        res = solver(x0=np.concatenate(init), lbx=lbx, ubx=ubx, lbg=rows.lower, ubg=rows.upper)
+        z_init = np.concatenate(init)
+        res, viol, worst = solve(z_init, 0.0, 1.0, z_init)  # stage 1: feasible near the seeds
+        if viol <= FEAS_TOL:  # stage 2: the motion cost, from there (kept only if still feasible)
+            res2, viol2, worst2 = solve(np.asarray(res["x"]).reshape(-1), 1.0, 0.0, z_init)
+            if viol2 <= FEAS_TOL:
+                res, viol, worst = res2, viol2, worst2
         restarted, keep = bool(keep), {}  # a partial restart is tried once, then a fresh start
-        g = np.asarray(res["g"]).reshape(-1)
-        viol = float(np.max(np.r_[np.asarray(rows.lower) - g, g - np.asarray(rows.upper), 0.0]))
-        over = np.maximum(np.asarray(rows.lower) - g, g - np.asarray(rows.upper))
-        worst = labels[int(np.argmax(over))] if g.size else ""
         if viol <= FEAS_TOL and in_collision is not None:
             zk = np.asarray(ca.reshape(res["x"], n, K)).T
-            bad = [k for k in range(K) if in_collision(ik.q_of(zk[k]), opening_at[k], actions[k])]
+            qk = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zk])
+            after = object_poses_after(actions, qk, poses, opening_at, drawers, model, ik.tool, sizes)
+            obstacles = [_obstacles(actions[k], after[k - 1] if k else poses, after[k]) for k in range(K)]
+            bad = [k for k in range(K) if in_collision(qk[k], opening_at[k], actions[k], obstacles[k])]
             if bad:  # feasible for the NLP, not for the robot: restart the rejected keyframes
                 viol, worst = 1.0, f"{actions[bad[0]]} keyframe collides in PyBullet (self or world)"
                 if not restarted:
                     keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
         status = solver.stats()["return_status"]
         log.debug("keyframes attempt %d: violation %.2e (%s) %s", _attempt, viol, worst, status)
-        cand = (viol, float(res["f"]), np.asarray(res["x"]).reshape(-1), worst)
+        cand = (viol, float(f_motion(res["x"])), np.asarray(res["x"]).reshape(-1), worst)
         if best is None or (cand[0] < best[0] - 1e-9) or (cand[0] <= FEAS_TOL and cand[1] < best[1]):
             best = cand
         if viol <= FEAS_TOL:
             break
     viol, f, zflat, worst_row = best  # type: ignore[misc]
     zs = np.asarray(ca.reshape(ca.DM(zflat), n, K)).T  # ca.vec is column-major: column k is keyframe k
-    keyframes = np.array([ik.q_of(z) for z in zs])
+    # IPOPT may end a hair outside a bound (its bound relaxation, ~1e-8): keyframes are kept inside
+    keyframes = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zs])
     # object poses after each action, evaluated numerically
-    out_poses = object_poses_after(
-        actions, keyframes, poses, opening_at, drawers, model, ik.tool, {m: o.size for m, o in objs.items()}
-    )
+    out_poses = object_poses_after(actions, keyframes, poses, opening_at, drawers, model, ik.tool, sizes)
     ok = viol <= FEAS_TOL
     return KeyframeResult(
         ok,
