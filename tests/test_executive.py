@@ -90,6 +90,27 @@ def test_scene_round_trips_through_the_recorded_form():
         assert scene_from_dict(scene_to_dict(s), s.source) == s
 
 
+def test_a_sensed_object_in_an_open_drawer_rests_on_the_drawer_floor():
+    """Mid-task the drawer is out and the dropped cup lies in it: the sensed world is plannable (the
+    drawer floor where the sensed opening has it), not a floating object."""
+    from rlgp_exec.errors import SceneError
+    from rlgp_exec.executive.world import update_scene
+    from rlgp_exec.scene import cabinet_geometry
+
+    scene = load_scene(ROOT / "sim" / "scenes" / "table_clearing_hsr.toml")
+    g = cabinet_geometry(scene.fixture("cabinet"))
+    T_floor = g.T_world_drawer_closed @ g.inner_box.T
+    T_floor[:3, 3] += 0.3 * np.asarray(g.axis_world) - np.array([0.0, 0.0, g.inner_box.size[2] / 2])
+    cup = scene.object("cup")
+    T = np.eye(4)
+    T[:3, 3] = T_floor[:3, 3] + [0.0, 0.0, cup.size[2] / 2]
+    poses = {"cup": T}
+    moved = update_scene(scene, load_robot("hsr"), None, poses, openings={"cabinet": 0.3})
+    assert moved.object("cup").support == "cabinet.drawer"
+    with pytest.raises(SceneError, match="cup"):
+        update_scene(scene, load_robot("hsr"), None, poses)  # the drawer closed: the cup would float
+
+
 def test_a_killed_writer_leaves_a_readable_recording(tmp_path):
     path = tmp_path / "killed.mcap"
     code = textwrap.dedent(f"""
@@ -297,6 +318,29 @@ def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, t
     rec.close()
     R = read_recording(rec.path)
     assert [d["to"] for _, d in R.topic("/transitions")][-1] == "fault"
+
+
+def test_zenoh_pick_place_pr2_reaches_its_goal(tmp_path):
+    """The PR2 over its Zenoh interface (arm, torso, head controllers and base) against a sim-robot
+    process: R-LGP, TOPPRA, Ruckig at 100 Hz, three blocks onto the tray, verified on the mocap poses."""
+    path = ROOT / "sim" / "scenes" / "pick_place_pr2.toml"
+    scene = load_scene(path)
+    robot = RobotProcess(path, robot="pr2")
+    rec = Recorder(tmp_path / "pr2.mcap")
+    try:
+        hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=robot.endpoint))
+        try:
+            time.sleep(0.5)
+            result = Executive(hal, scene, objects, recorder=rec).run()
+        finally:
+            objects.close()
+            hal.shutdown()
+    finally:
+        robot.stop()
+        rec.close()
+    assert result.status is TaskStatus.SUCCEEDED and result.verified, result.detail
+    assert sorted(a.split()[1] for a in result.actions if a.startswith("(place")) == ["block_a", "block_b", "block_c"]
+    assert read_recording(rec.path).topic("/events")[-1][1]["status"] == "succeeded"
 
 
 # ---------------------------------------------------------------------------------- the daemon

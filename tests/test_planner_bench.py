@@ -48,3 +48,27 @@ def test_a_run_that_crashes_natively_is_a_failed_run_not_the_end_of_the_sweep(mo
     record, xy = bench.run_isolated(str(SORTING), "rlgp", 0)
     assert not record["success"] and xy == []
     assert record["reason"] == f"crashed: the planning process ended with exit code {-signal.SIGSEGV}"
+
+
+def test_planner_memory_carries_the_graph_and_what_queries_taught_it_to_the_next_call():
+    """The executive's replans start from what earlier plans learnt: the same graph object, with the
+    nodes its queries inserted (a fresh load from the cache has fewer), and the second plan is valid."""
+    from rlgp_exec.planning.memory import PlannerMemory
+    from rlgp_exec.planning.registry import plan
+    from rlgp_exec.reach import RGParams, load_or_build
+    from rlgp_exec.scene import load_scene
+
+    scene = load_scene(SORTING)
+    memory = PlannerMemory()
+    first = plan(scene, "rlgp", seed=0, memory=memory)
+    assert first.success, first.reason
+    (graph,) = memory.graphs.values()
+    learnt = len(graph.alive)
+    fresh, _ = load_or_build(scene, params=RGParams())
+    assert learnt > len(fresh.alive)
+    moved = scene.with_object_poses({"block_blue": (*scene.object("block_blue").pose[:1],
+                                                    scene.object("block_blue").pose[1] + 0.03,
+                                                    *scene.object("block_blue").pose[2:])})
+    second = plan(moved, "rlgp", seed=1, memory=memory)
+    assert second.success, second.reason
+    assert memory.hits == 1 and list(memory.graphs.values()) == [graph] and len(graph.alive) >= learnt

@@ -24,6 +24,7 @@ from rlgp_exec.executive.states import ExecState, StateMachine
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.validate import Phase, goal_holds
 from rlgp_exec.robot.model import FloatArray
@@ -108,6 +109,7 @@ class Executive:
         self.scene = scene  # the world model: updated by every SENSE
         self.objects = objects
         self.planner, self.seed, self.max_replans = planner, seed, max_replans
+        self.memory = PlannerMemory()  # the planners' graphs, kept (and improved) across plans and replans
         self.recorder = recorder
         self.tol = tolerances or Tolerances()
         self.signals = Signals()
@@ -168,8 +170,8 @@ class Executive:
         st = self._robot_state()
         poses = self.objects.poses()
         self._record_detections(poses)
-        self.scene = update_scene(self.scene, self.model, st, poses, self.held)
         self.openings = drawer_openings(self.scene, poses)
+        self.scene = update_scene(self.scene, self.model, st, poses, self.held, self.openings)
         if self.recorder is not None:
             self.recorder.write("/scene", scene_to_dict(self.scene))
         return self.scene
@@ -303,7 +305,7 @@ class Executive:
                 from rlgp_exec.planning.registry import plan as run_planner
 
                 for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
-                    plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k)
+                    plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory)
                     stats["plans"] += 1
                     stats["planning_time_s"] += plan.planning_time_s
                     if plan.success:

@@ -137,10 +137,13 @@ def drawer_openings(scene: Scene, poses: dict[str, FloatArray]) -> dict[str, flo
     return out
 
 
-def _snap(scene: Scene, name: str, x: float, y: float, z: float, height: float) -> float:
+def _snap(
+    scene: Scene, name: str, x: float, y: float, z: float, height: float, openings: dict[str, float] | None = None
+) -> float:
     bottom = z - height / 2
     xy = np.array([x, y])
-    near = [s.z for s in support_surfaces(scene, exclude=name) if s.contains(xy) and abs(s.z - bottom) <= SNAP_Z]
+    surfaces = support_surfaces(scene, exclude=name, openings=openings)
+    near = [s.z for s in surfaces if s.contains(xy) and abs(s.z - bottom) <= SNAP_Z]
     return (max(near) + height / 2) if near else z
 
 
@@ -150,10 +153,12 @@ def update_scene(
     state: RobotState | None,
     poses: dict[str, FloatArray],
     held: str | None = None,
+    openings: dict[str, float] | None = None,
 ) -> Scene:
     """``scene`` with the robot's base and manipulator joints from ``state`` and the objects at ``poses``
-    (upright, resting on the surface under them). Raises SceneError naming an object that is not resting
-    on anything (it fell, or is in the hand: ``held``)."""
+    (upright, resting on the surface under them; a drawer's floor where ``openings`` [m] has it).
+    Raises SceneError naming an object that is not resting on anything (it fell, or is in the hand:
+    ``held``)."""
     objects = []
     for o in scene.objects:
         T = poses.get(o.name)
@@ -168,7 +173,8 @@ def update_scene(
         s,
         objects=tuple(
             replace(
-                o, pose=(o.pose[0], o.pose[1], _snap(s, o.name, o.pose[0], o.pose[1], o.pose[2], o.size[2]), o.pose[3])
+                o,
+                pose=(o.pose[0], o.pose[1], _snap(s, o.name, *o.pose[:3], o.size[2], openings), o.pose[3]),
             )
             for o in s.objects
         ),
@@ -187,4 +193,4 @@ def update_scene(
     def fail(where: str, msg: str) -> SceneError:
         return SceneError(f"{scene.name} (sensed)", where, msg)
 
-    return find_support(s, fail)
+    return find_support(s, fail, openings)

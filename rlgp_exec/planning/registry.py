@@ -1,7 +1,8 @@
 """The planners by name: one entry point (``plan``) that every caller uses — the ``plan`` and ``bench``
 commands, the executive and the daemon — so a planner is added in one place.
 
-Each planner takes a scene (with its goal) and a seed and returns a validated ``Plan``.
+Each planner takes a scene (with its goal), a seed and an optional :class:`PlannerMemory` (what earlier
+calls learnt; the executive keeps one across replans) and returns a validated ``Plan``.
 """
 
 from __future__ import annotations
@@ -9,19 +10,20 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.scene import Scene
 
 __all__ = ["PLANNERS", "plan", "planner_names", "register"]
 
-PlannerFn = Callable[[Scene, int], Plan]
+PlannerFn = Callable[[Scene, int, PlannerMemory | None], Plan]
 
 
 def _rlgp(name: str) -> PlannerFn:
-    def run(scene: Scene, seed: int) -> Plan:
+    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:
         from rlgp_exec.planning.rlgp import plan_scene
 
-        return plan_scene(scene, name, seed=seed)
+        return plan_scene(scene, name, seed=seed, memory=memory)
 
     return run
 
@@ -50,9 +52,9 @@ def planner_names() -> list[str]:
     return list(PLANNERS)
 
 
-def plan(scene: Scene, planner: str = "rlgp", seed: int = 0) -> Plan:
+def plan(scene: Scene, planner: str = "rlgp", seed: int = 0, memory: PlannerMemory | None = None) -> Plan:
     """Plan ``scene``'s goal with ``planner``; raises RlgpError naming the valid planners if unknown."""
     _load_plugins()
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
-    return PLANNERS[planner](scene, seed)
+    return PLANNERS[planner](scene, seed, memory)

@@ -24,6 +24,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
@@ -117,9 +118,11 @@ def plan_scene(
     params: RGParams | None = None,
     seed: int = 0,
     time_budget_s: float = TIME_BUDGET_S,
+    memory: PlannerMemory | None = None,
 ) -> Plan:
     """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not.
-    No new candidate is started after ``time_budget_s`` [s] (the one under way finishes)."""
+    No new candidate is started after ``time_budget_s`` [s] (the one under way finishes). ``memory``
+    keeps the reachability graph, and what this call teaches it, for the next call."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
     t0 = time.perf_counter()
@@ -134,7 +137,7 @@ def plan_scene(
         if already.ok:
             dt = time.perf_counter() - t0
             return Plan(True, planner, (), np.zeros((0, 0)), (), dt, 0, 0, already, "the goal already holds")
-    geo = SequenceGeometry(scene, params, seed)
+    geo = SequenceGeometry(scene, params, seed, memory)
     try:
         cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
         search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
@@ -156,7 +159,7 @@ def plan_scene(
             if isinstance(actions, str):
                 reasons.append(actions)
                 continue
-            result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0)
+            result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0, deadline=t0 + time_budget_s)
             log.info("%s candidate %d %s: %s", planner, k, cand, result.reason)
             if result.success:
                 return result

@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger_spheres
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.plan import Plan
@@ -39,11 +40,18 @@ class SequenceGeometry:
     """Everything geometric the R-LGP loop asks of a scene: heuristic costs and waypoints from the
     reachability graph, keyframe NLPs, and validated plans for candidate sequences."""
 
-    def __init__(self, scene: Scene, params: RGParams | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, scene: Scene, params: RGParams | None = None, seed: int = 0, memory: PlannerMemory | None = None
+    ) -> None:
+        """``memory``: where the reachability graph comes from and stays (with what queries teach it)
+        for the next call; without one, the cached graph is loaded for this call only."""
         self.scene, self.seed = scene, seed
         self.model = load_robot(scene.robot.name)
         self.q0 = nominal_q(self.model, scene)
-        self.graph, self.graph_stats = load_or_build(scene, params=params or RGParams())
+        if memory is not None:
+            self.graph, self.graph_stats = memory.graph(scene, params or RGParams())
+        else:
+            self.graph, self.graph_stats = load_or_build(scene, params=params or RGParams())
         self.checker = WorldChecker(scene, self.model.manipulator().group)
         self.ik = ReachIK(self.model, scene, self.q0)
         self.rg = ReachabilityPlanner(self.graph, self.ik, self.checker, rng_seed=seed)
@@ -120,14 +128,22 @@ class SequenceGeometry:
         return None
 
     def plan_actions(
-        self, actions: list[Action], planner: str = "rlgp", nodes_expanded: int = 0, t_start: float | None = None
+        self,
+        actions: list[Action],
+        planner: str = "rlgp",
+        nodes_expanded: int = 0,
+        t_start: float | None = None,
+        deadline: float | None = None,
     ) -> Plan:
         """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
-        leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails."""
+        leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails.
+        ``deadline`` (``time.perf_counter()`` [s]): no new keyframe start or tilt after it."""
         t0 = time.perf_counter() if t_start is None else t_start
         reasons = []
         for tilt in (0.0, 0.6):
-            result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
+            if reasons and deadline is not None and time.perf_counter() > deadline:
+                break
+            result = self._attempt(actions, planner, nodes_expanded, t0, tilt, deadline)
             if result.success:
                 return result
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
@@ -203,7 +219,9 @@ class SequenceGeometry:
             i = nxt
         return path[keep]
 
-    def _attempt(self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float) -> Plan:
+    def _attempt(
+        self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float, deadline: float | None
+    ) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
         kf = solve_keyframes(
@@ -220,6 +238,7 @@ class SequenceGeometry:
             body=self.body,
             lift_room=APPROACH,
             seeds=self._graph_seeds,
+            deadline=deadline,
         )
         empty = np.zeros((0, self.model.nq))
 

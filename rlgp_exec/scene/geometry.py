@@ -14,6 +14,7 @@ box (bottom, front, back, two sides) of outer depth ``sx - 5 cm``, width ``sy - 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,8 +158,11 @@ def region_box(scene: Scene, region: Region, thickness: float = 0.002) -> Box:
     return Box(region.name, (region.size[0], region.size[1], thickness), T, COLORS[region.color])
 
 
-def support_surfaces(scene: Scene, exclude: str | None = None) -> list[Surface]:
-    """Every surface an object may rest on: fixture tops, cabinet tops, drawer bottoms, object tops."""
+def support_surfaces(
+    scene: Scene, exclude: str | None = None, openings: Mapping[str, float] | None = None
+) -> list[Surface]:
+    """Every surface an object may rest on: fixture tops, cabinet tops, drawer bottoms (pulled out by
+    ``openings`` [m], cabinet name -> opening; closed when absent), object tops."""
     out: list[Surface] = []
     for fx in scene.fixtures:
         if fx.kind == "drawer_cabinet":
@@ -167,6 +171,7 @@ def support_surfaces(scene: Scene, exclude: str | None = None) -> list[Surface]:
             out.append(Surface(fx.name, _local(top.T, (0, 0, top.size[2] / 2)), top.size[:2]))
             inner = g.inner_box
             T_in = g.T_world_drawer_closed @ inner.T
+            T_in[:3, 3] += (openings or {}).get(fx.name, 0.0) * np.asarray(g.axis_world, float)
             out.append(Surface(f"{fx.name}.drawer", _local(T_in, (0, 0, -inner.size[2] / 2)), inner.size[:2]))
         else:
             out.append(Surface(fx.name, _local(fx.T, (0, 0, fx.size[2] / 2)), fx.size[:2]))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -23,14 +23,15 @@ def footprint_radius(obj: SceneObject) -> float:
     return float(np.hypot(obj.size[0], obj.size[1]) / 2)
 
 
-def find_support(scene: Scene, fail: Fail) -> Scene:
-    """Fill each object's ``support``: the highest surface under its centre that its bottom touches."""
+def find_support(scene: Scene, fail: Fail, openings: Mapping[str, float] | None = None) -> Scene:
+    """Fill each object's ``support``: the highest surface under its centre that its bottom touches
+    (drawers pulled out by ``openings`` [m], cabinet name -> opening: a sensed world mid-task)."""
     objs = []
     for o in scene.objects:
         bottom = o.pose[2] - o.size[2] / 2
         xy = np.asarray(o.pose[:2])
         top = o.pose[2] + o.size[2] / 2
-        surfaces = [s for s in support_surfaces(scene, exclude=o.name) if s.contains(xy)]
+        surfaces = [s for s in support_surfaces(scene, exclude=o.name, openings=openings) if s.contains(xy)]
         under = [s for s in surfaces if s.z <= bottom + 0.05]
         touching = [s for s in under if abs(s.z - bottom) <= SUPPORT_TOLERANCE]
         where = f"[[object]] '{o.name}'.pose"

@@ -7,9 +7,12 @@ towards a target state, and outputs that motion's state one control period later
   ``L`` (``minimum_duration`` with time synchronisation). Ruckig then behaves as a jerk-limited
   tracking filter: it stays in phase with the reference instead of racing to a state snapshot,
   which is what a time-optimal point-to-point step towards the next sample does (it lags by tens
-  of centimetres on a trajectory at its acceleration limits). ``L`` defaults to four acceleration
-  ramp times, 4 max(a / j). A trajectory timed at the full limits cannot be tracked exactly by a
-  jerk-limited follower (TOPPRA's acceleration jumps); time the trajectories the streamer follows
+  of centimetres on a trajectory at its acceleration limits). ``L`` defaults to two acceleration
+  ramp times, 2 max(a / j): shorter cuts corners less. When time synchronisation falls into a
+  blocked interval (one joint cannot take exactly ``L``: Ruckig then stretches every joint, seen 13 s
+  for 0.4 s asked), longer horizons are tried, then each joint on its own. A trajectory timed at
+  the full limits cannot be tracked exactly by a jerk-limited follower (TOPPRA's acceleration
+  jumps); time the trajectories the streamer follows
   with ``TRACKING_HEADROOM`` (90 % velocity, 80 % acceleration) and the tracking error stays in
   the millimetres.
 - STOP: zero velocity and acceleration through Ruckig's velocity interface: a jerk-limited ramp.
@@ -41,6 +44,9 @@ __all__ = ["TRACKING_HEADROOM", "Setpoint", "StreamMode", "Streamer", "stop_time
 
 #: (velocity, acceleration) factors for timing trajectories the streamer follows: ``limits.scaled(*TRACKING_HEADROOM)``
 TRACKING_HEADROOM = (0.9, 0.8)
+LOOKAHEAD_RAMPS = 2.0  # default look-ahead: this many acceleration ramp times max(a / j)
+BLOCKED_STRETCH = 1.25  # a synchronised duration this many times the requested one: a blocked interval
+RESYNC_FACTORS = (1.5, 2.0, 3.0)  # longer look-ahead horizons tried then
 
 
 class StreamMode(enum.Enum):
@@ -95,7 +101,7 @@ class Streamer:
         self._inp.max_acceleration = self._amax.tolist()
         self._inp.max_jerk = limits.jerk.tolist()
         ramp = float(np.max(limits.acceleration / limits.jerk))
-        self.lookahead = max(4.0 * ramp, 2.0 * self.dt) if lookahead is None else float(lookahead)
+        self.lookahead = max(LOOKAHEAD_RAMPS * ramp, 2.0 * self.dt) if lookahead is None else float(lookahead)
         if not (self.lookahead >= self.dt and np.isfinite(self.lookahead)):
             raise TimingError(f"look-ahead must be at least one control period ({self.dt} s), got {lookahead}")
         self.t = 0.0
@@ -152,6 +158,35 @@ class Streamer:
         a = np.sign(a) * np.minimum(np.abs(a), 0.999 * room)
         return v, a
 
+    def _follow_target(self, horizon: float, sync: Synchronization) -> None:
+        """Target the followed trajectory's state ``horizon`` [s] ahead, to be reached in that time."""
+        assert self._traj is not None
+        inp = self._inp
+        inp.synchronization = sync
+        inp.minimum_duration = horizon if sync is Synchronization.Time else None
+        q_t, dq_t, ddq_t = self._traj.sample(self._t_traj + horizon, wrap=False)
+        v_t, a_t = self._reachable_target(dq_t, ddq_t)
+        inp.target_position = (q_t + self._offset).tolist()
+        inp.target_velocity, inp.target_acceleration = v_t.tolist(), a_t.tolist()
+
+    def _blocked(self) -> bool:
+        """Time synchronisation fell into a blocked interval: a joint cannot take exactly the requested
+        duration (its feasible durations have a gap), so every joint was stretched far beyond it (seen:
+        0.4 s requested, 13 s computed: the streamer braked hard and fell ~0.6 rad behind)."""
+        wanted = self._inp.minimum_duration or self.lookahead
+        return self._out.trajectory.duration > BLOCKED_STRETCH * wanted
+
+    def _resync(self) -> Result:
+        """Longer horizons first (the reference further ahead, reached in that time), then each joint on
+        its own towards the look-ahead target: the first that does not stretch is taken."""
+        for factor in RESYNC_FACTORS:
+            self._follow_target(self.lookahead * factor, Synchronization.Time)
+            res = self._otg.update(self._inp, self._out)
+            if res != Result.Working or not self._blocked():
+                return res
+        self._follow_target(self.lookahead, Synchronization.No)
+        return self._otg.update(self._inp, self._out)
+
     # ------------------------------------------------------------------ cycle
     def step(self) -> Setpoint:
         """Advance one control period and return the new setpoint."""
@@ -169,13 +204,9 @@ class Streamer:
             inp.target_acceleration = [0.0] * self.limits.n
         elif self.mode is StreamMode.FOLLOW and self._traj is not None:
             inp.control_interface = ControlInterface.Position
-            inp.synchronization, inp.minimum_duration = Synchronization.Time, self.lookahead
-            q_t, dq_t, ddq_t = self._traj.sample(self._t_traj + self.lookahead, wrap=False)
+            self._follow_target(self.lookahead, Synchronization.Time)
             self._t_traj += self.dt
             finished_traj = self._t_traj >= self._traj.duration
-            v_t, a_t = self._reachable_target(dq_t, ddq_t)
-            inp.target_position = (q_t + self._offset).tolist()
-            inp.target_velocity, inp.target_acceleration = v_t.tolist(), a_t.tolist()
         else:
             inp.control_interface = ControlInterface.Position
             inp.synchronization, inp.minimum_duration = Synchronization.No, None
@@ -184,6 +215,8 @@ class Streamer:
             inp.target_acceleration = [0.0] * self.limits.n
         t0 = time.perf_counter()
         res = self._otg.update(inp, self._out)
+        if self.mode is StreamMode.FOLLOW and res == Result.Working and self._blocked():
+            res = self._resync()
         compute_us = (time.perf_counter() - t0) * 1e6
         if res not in (Result.Working, Result.Finished):
             raise TimingError(f"Ruckig rejected the cycle input ({res}); state q={self.q}, dq={self.dq}")

@@ -1,6 +1,7 @@
 """Time-optimal path parameterisation with TOPPRA under velocity and acceleration limits.
 
-A phase path (T, N) is interpolated by a shape-preserving cubic (PCHIP) through its waypoints,
+A phase path (T, N) of straight segments is resampled finely (``densify``: the cubic then follows
+the segments, the ones the planners checked) and interpolated by a shape-preserving cubic (PCHIP),
 parameterised by normalised cumulative chord length, and retimed rest-to-rest by TOPPRA (seidel solver). The
 omnidirectional base's velocity limits hold along the *base* frame's axes: the path's world-frame
 velocity rotated by -yaw must satisfy |v_bx| <= vx, |v_by| <= vy. This is exact, as a
@@ -43,7 +44,15 @@ from rlgp_exec.timing.trajectory import (
     as_path,
 )
 
-__all__ = ["MAX_RETRIES", "ConstAccelPiece", "PchipPath", "time_parameterize", "time_parameterize_phases"]
+__all__ = [
+    "DENSIFY_STEP",
+    "MAX_RETRIES",
+    "ConstAccelPiece",
+    "PchipPath",
+    "densify",
+    "time_parameterize",
+    "time_parameterize_phases",
+]
 
 log = logging.getLogger(__name__)
 logging.getLogger("toppra").setLevel(logging.ERROR)  # its uncontrollable-grid warning is our fallback path
@@ -52,7 +61,9 @@ MAX_RETRIES = 3
 CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
 POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
 _DUP = 1e-9
-CUSP_DEG = 80.0  # [deg] a path turning more than this at a waypoint stops there (rest-to-rest pieces)
+CUSP_DEG = 80.0  # [deg] cusps(): default threshold of a reversal
+STOP_DEG = 20.0  # [deg] a path turning more than this at a waypoint stops there (rest-to-rest pieces)
+DENSIFY_STEP = 0.02  # [m or rad] the straight segments are resampled this finely before interpolation
 
 
 class PchipPath(ta.interpolator.AbstractGeometricPath):
@@ -242,6 +253,22 @@ def cusps(p: FloatArray, max_turn_deg: float = CUSP_DEG) -> list[int]:
     return [int(i) + 1 for i in np.flatnonzero(cos < math.cos(math.radians(max_turn_deg)))]
 
 
+def densify(p: FloatArray, step: float) -> FloatArray:
+    """The polyline ``p`` (T, N) with points inserted on each segment, at most ``step`` apart per joint.
+
+    The planners hand over straight segments, checked for collisions as straight segments. A cubic
+    per joint through sparse waypoints leaves them: PCHIP flattens each joint at its own turning
+    points, so joints fall out of step along a long segment (an arm finishing its motion while the base
+    still turns: tens of centimetres off the checked path). Through points ``step`` apart the cubic is
+    exact on the straight parts (PCHIP reproduces collinear data) and leaves the path only in the
+    two short intervals at a corner, by a fraction of ``step``."""
+    out = [p[:1]]
+    for a, b in itertools.pairwise(p):
+        n = max(1, math.ceil(float(np.abs(b - a).max()) / step))
+        out.append(a[None] + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a)[None])
+    return np.vstack(out)
+
+
 def time_parameterize(
     path: Sequence[Sequence[float]] | FloatArray, limits: JointLimits, *, gridpoints: int = 100
 ) -> TimingResult:
@@ -256,15 +283,14 @@ def time_parameterize(
     if p.shape[0] == 1:  # nothing moves
         traj = Trajectory(limits.names, limits, (_Hold(p[0]),), (Segment(PhaseKind.MOTION, 0.0, 0.0),))
         return TimingResult(TimingStatus.OK, "no motion", traj, (time.perf_counter() - t0) * 1e3)
-    res = _time_path(p, limits, base=_has_base(limits), gridpoints=gridpoints, t0=t0)
-    corners = cusps(p) if res.status in (TimingStatus.INFEASIBLE, TimingStatus.NUMERICAL) else []
-    if corners:  # a path reversing at a waypoint (a vertical approach then leave) has no smooth timing
-        # through that corner: stop there, i.e. time the pieces between sharp corners rest-to-rest
+    corners = cusps(p, STOP_DEG)
+    if corners:  # stop at every sharp corner: a jerk-limited follower cuts a corner taken at speed, and a
+        # path reversing at a waypoint (a vertical approach, then leave) has no smooth timing through it
         cuts = [0, *corners, p.shape[0] - 1]
         return time_parameterize_phases(
             [(PhaseKind.MOTION, p[a : b + 1]) for a, b in itertools.pairwise(cuts)], limits, gridpoints=gridpoints
         )
-    return res
+    return _time_path(densify(p, DENSIFY_STEP), limits, base=_has_base(limits), gridpoints=gridpoints, t0=t0)
 
 
 def _time_path(p: FloatArray, limits: JointLimits, *, base: bool, gridpoints: int, t0: float) -> TimingResult:

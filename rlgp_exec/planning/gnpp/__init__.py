@@ -5,6 +5,7 @@ the internal best-first search on the compiled task) and ``gnpp_trn_fd`` (logic 
 from __future__ import annotations
 
 from rlgp_exec.planning.gnpp.planner import VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.registry import register
 from rlgp_exec.scene import Scene
@@ -15,7 +16,7 @@ __all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "
 
 
 def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
-    def run(scene: Scene, seed: int) -> Plan:
+    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:  # (no memory: see memory.py)
         from dataclasses import replace
 
         return replace(plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S).plan, planner=name)

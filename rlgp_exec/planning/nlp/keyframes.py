@@ -57,7 +57,8 @@ PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
-DROP_GAP = 0.02  # [m] between objects placed on one target or dropped into one drawer (footprint circles)
+PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
+DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 DRAWER_ACTIONS = ("take_knob", "open_drawer", "close_drawer")
@@ -178,6 +179,7 @@ def solve_keyframes(
     body: Sequence[tuple[str, Box]] = (),
     lift_room: float = 0.0,
     seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
+    deadline: float | None = None,
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
@@ -191,6 +193,7 @@ def solve_keyframes(
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
     nodes near x, nearest first); every other start uses them, the rest a random free base heading.
+    ``deadline`` (``time.perf_counter()`` [s]): no new start after it (the best so far is returned).
     After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
     t0 = time.perf_counter()
     objs = {o.name: o for o in scene.objects}
@@ -299,7 +302,8 @@ def solve_keyframes(
                 targets.append(T_rect[:3, 3] + np.array([0.0, 0.0, rim - T_rect[2, 3] + DROP_LOW + o.size[2]]))
             r_o = float(np.hypot(o.size[0], o.size[1])) / 2
             for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
-                rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + DROP_GAP) ** 2, ca.inf)
+                gap = DROP_GAP if a.name == "drop" else PLACE_GAP
+                rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             moved.add(a.obj)
             held, grasp = None, None
@@ -344,6 +348,9 @@ def solve_keyframes(
     best = None
     keep: dict[int, FloatArray] = {}  # keyframes of a rejected solution that PyBullet accepted
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
+        if _attempt and deadline is not None and time.perf_counter() > deadline:
+            log.info("keyframes: deadline reached after %d starts", _attempt)
+            break
         init: list[FloatArray] = []
         for k, x in enumerate(targets):
             if k in keep:
