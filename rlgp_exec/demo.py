@@ -26,7 +26,7 @@ __all__ = ["DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
 
 log = logging.getLogger(__name__)
 
-DEMO_SCENE = "sorting_hsr"
+DEMO_SCENE = "table_clearing_hsr"  # the R-LGP paper's task: knob, drawer, cup against a wall, drops
 DEMO_SCENES = ("table_clearing_hsr", "sorting_hsr")  # HSR scenes with tagged objects
 PERTURB_M = 0.04  # [m] how far the true objects are from the file
 

@@ -117,7 +117,7 @@ def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
     from rlgp_exec.demo import run_demo
     from rlgp_exec.executive import read_recording
 
-    report = run_demo(tmp_path, seed=1)
+    report = run_demo(tmp_path, seed=1, scene_name="sorting_hsr")  # (make demo: table clearing, ~6 min)
     assert report.ok, report.text()
     assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "executive", "replay"]
     assert "goal holds in the sensed world" in report.text()

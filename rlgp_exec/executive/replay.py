@@ -70,6 +70,7 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
         names = model.joint_names
         q = model.home(scene.robot.base, scene.robot.joints)
         objects = set(world.objects)
+        fingers = {n for m in model.config.manipulators for n in model.manipulator(m.name).links}
         det_i = 0
         last_xy = None
         for k, (t, st) in enumerate(states):
@@ -94,10 +95,13 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
                 if n in by_name:
                     q[i] = by_name[n]
             world.robot.set_q(q)
-            for b in world.penetrations(tolerance=5e-3):  # robot vs fixtures and itself (objects move in the hand)
-                what = b.rsplit(" (", 1)[0]
-                if what.startswith("robot") and what.split(" ~ ")[-1] not in objects:
-                    collisions.add(what)
+            for c in world.robot.contacts(5e-3):  # robot vs fixtures and itself (objects move in the hand)
+                name = world.body_name(c.other_body) if c.other_body != world.robot.id else c.other_link
+                if name in objects:
+                    continue
+                if c.link in fingers and name in world.cabinets and c.other_link == "0":
+                    continue  # the fingers round a drawer's knob (link 0 of a cabinet: its drawer)
+                collisions.add(f"robot {c.link} ~ {name}")
         if png is not None:
             import cv2
 

@@ -34,6 +34,7 @@ def _seed_once(seed: int = 1) -> None:
     if not _SEEDED:
         from ompl import util as ou
 
+        ou.setLogLevel(ou.LogLevel.LOG_ERROR)  # OMPL writes to stdout itself; our own log says what matters
         ou.RNG.setSeed(seed)
         _SEEDED.append(True)
 

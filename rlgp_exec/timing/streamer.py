@@ -30,15 +30,18 @@ world-frame components can reach sqrt(2) v on a diagonal.
 from __future__ import annotations
 
 import enum
+import logging
 import time
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, Synchronization
+from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError, Synchronization
 
 from rlgp_exec.robot.config import BASE_JOINTS
 from rlgp_exec.robot.limits import JointLimits
 from rlgp_exec.timing.trajectory import FloatArray, TimingError, Trajectory
+
+log = logging.getLogger(__name__)
 
 __all__ = ["TRACKING_HEADROOM", "Setpoint", "StreamMode", "Streamer", "stop_time_bound"]
 
@@ -176,16 +179,24 @@ class Streamer:
         wanted = self._inp.minimum_duration or self.lookahead
         return self._out.trajectory.duration > BLOCKED_STRETCH * wanted
 
-    def _resync(self) -> Result:
+    def _update(self) -> Result | None:
+        """One Ruckig update; None when its synchronisation fails numerically (it raises then)."""
+        try:
+            return self._otg.update(self._inp, self._out)
+        except RuckigError as e:
+            log.debug("Ruckig: %s", str(e).splitlines()[0] if str(e) else type(e).__name__)
+            return None
+
+    def _resync(self) -> Result | None:
         """Longer horizons first (the reference further ahead, reached in that time), then each joint on
         its own towards the look-ahead target: the first that does not stretch is taken."""
         for factor in RESYNC_FACTORS:
             self._follow_target(self.lookahead * factor, Synchronization.Time)
-            res = self._otg.update(self._inp, self._out)
-            if res != Result.Working or not self._blocked():
+            res = self._update()
+            if res is not None and (res != Result.Working or not self._blocked()):
                 return res
         self._follow_target(self.lookahead, Synchronization.No)
-        return self._otg.update(self._inp, self._out)
+        return self._update()
 
     # ------------------------------------------------------------------ cycle
     def step(self) -> Setpoint:
@@ -214,10 +225,12 @@ class Streamer:
             inp.target_velocity = [0.0] * self.limits.n
             inp.target_acceleration = [0.0] * self.limits.n
         t0 = time.perf_counter()
-        res = self._otg.update(inp, self._out)
-        if self.mode is StreamMode.FOLLOW and res == Result.Working and self._blocked():
+        res = self._update()
+        if self.mode is StreamMode.FOLLOW and (res is None or (res == Result.Working and self._blocked())):
             res = self._resync()
         compute_us = (time.perf_counter() - t0) * 1e6
+        if res is None:
+            raise TimingError(f"Ruckig failed on every synchronisation; state q={self.q}, dq={self.dq}")
         if res not in (Result.Working, Result.Finished):
             raise TimingError(f"Ruckig rejected the cycle input ({res}); state q={self.q}, dq={self.dq}")
         out = self._out
