@@ -71,9 +71,9 @@ def test_time_optimal_beats_the_straight_line_bound_exactly():
 
 
 def test_a_path_reversing_at_a_waypoint_stops_there_and_stays_inside_the_limits():
-    """The HSR driving to a grasp's approach pose, then the lift going straight down (a cusp): TOPPRA
-    finds no timing of one smooth path through that corner, so the motion comes to rest there and the
-    two pieces are timed rest-to-rest; never reported infeasible."""
+    """The HSR driving to a grasp's approach pose, then the lift going straight down (a cusp): the
+    motion passes the corner waypoint at rest (one smooth timing whose path speed vanishes there, or two
+    pieces timed rest-to-rest), inside the limits; never reported infeasible."""
     limits = load_robot("hsr").limits.scaled(*TRACKING_HEADROOM)
     q0 = [0.0, -1.0, 1.5708, 0.0, 0.0, -1.57, -1.57, 0.0, 0.0, -0.4, 1.0]
     q1 = [0.0446, -0.675, 1.2977, 0.5256, -1.4448, 0.0, -1.6968, -0.2731, 0.0, -0.4, 1.0]
@@ -83,12 +83,10 @@ def test_a_path_reversing_at_a_waypoint_stops_there_and_stays_inside_the_limits(
     res = time_parameterize(path, limits)
     assert res.ok, res.reason
     traj = res.trajectory
-    assert len(traj.pieces) == 2
-    t_cusp = traj.pieces[0].duration
-    q, dq, _ = traj.sample_many(np.array([t_cusp]), wrap=False)
-    assert np.allclose(q[0], path[1], atol=1e-6) and np.abs(dq[0]).max() < 1e-6
     ts = np.linspace(0.0, traj.duration, 4001)
-    _, dq, ddq = traj.sample_many(ts, wrap=False)
+    q, dq, ddq = traj.sample_many(ts, wrap=False)
+    k = int(np.argmin(np.abs(q - path[1]).max(axis=1)))  # where it passes the corner
+    assert np.abs(q[k] - path[1]).max() < 1e-3 and np.abs(dq[k]).max() < 0.01
     assert np.all(np.abs(dq[:, 3:]) <= limits.velocity[3:] * (1 + TOL))
     assert np.all(np.abs(ddq[:, 3:]) <= limits.acceleration[3:] * (1 + TOL))
 

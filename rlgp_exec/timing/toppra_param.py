@@ -61,8 +61,7 @@ MAX_RETRIES = 3
 CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
 POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
 _DUP = 1e-9
-CUSP_DEG = 80.0  # [deg] cusps(): default threshold of a reversal
-STOP_DEG = 20.0  # [deg] a path turning more than this at a waypoint stops there (rest-to-rest pieces)
+CUSP_DEG = 80.0  # [deg] a path turning more than this at a waypoint stops there when no smooth timing exists
 DENSIFY_STEP = 0.02  # [m or rad] the straight segments are resampled this finely before interpolation
 
 
@@ -254,18 +253,19 @@ def cusps(p: FloatArray, max_turn_deg: float = CUSP_DEG) -> list[int]:
 
 
 def densify(p: FloatArray, step: float) -> FloatArray:
-    """The polyline ``p`` (T, N) with points inserted on each segment, at most ``step`` apart per joint.
+    """The polyline ``p`` (T, N) with two points inserted on each segment, ``step`` (per joint, at most)
+    from its ends.
 
     The planners hand over straight segments, checked for collisions as straight segments. A cubic
     per joint through sparse waypoints leaves them: PCHIP flattens each joint at its own turning
     points, so joints fall out of step along a long segment (an arm finishing its motion while the base
-    still turns: tens of centimetres off the checked path). Through points ``step`` apart the cubic is
-    exact on the straight parts (PCHIP reproduces collinear data) and leaves the path only in the
-    two short intervals at a corner, by a fraction of ``step``."""
+    still turns: tens of centimetres off the checked path). PCHIP reproduces collinear data, so with
+    points ``step`` from each end the cubic is exact between them and leaves the segment only in the
+    short intervals at a corner, by a fraction of ``step``; a short segment is cut into thirds."""
     out = [p[:1]]
     for a, b in itertools.pairwise(p):
-        n = max(1, math.ceil(float(np.abs(b - a).max()) / step))
-        out.append(a[None] + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a)[None])
+        f = min(step / max(float(np.abs(b - a).max()), 1e-300), 1.0 / 3.0)
+        out.append(a[None] + np.array([f, 1.0 - f, 1.0])[:, None] * (b - a)[None])
     return np.vstack(out)
 
 
@@ -283,14 +283,15 @@ def time_parameterize(
     if p.shape[0] == 1:  # nothing moves
         traj = Trajectory(limits.names, limits, (_Hold(p[0]),), (Segment(PhaseKind.MOTION, 0.0, 0.0),))
         return TimingResult(TimingStatus.OK, "no motion", traj, (time.perf_counter() - t0) * 1e3)
-    corners = cusps(p, STOP_DEG)
-    if corners:  # stop at every sharp corner: a jerk-limited follower cuts a corner taken at speed, and a
-        # path reversing at a waypoint (a vertical approach, then leave) has no smooth timing through it
+    res = _time_path(densify(p, DENSIFY_STEP), limits, base=_has_base(limits), gridpoints=gridpoints, t0=t0)
+    corners = cusps(p) if res.status in (TimingStatus.INFEASIBLE, TimingStatus.NUMERICAL) else []
+    if corners:  # a path reversing at a waypoint (a vertical approach then leave) may have no smooth
+        # timing through that corner: stop there, i.e. time the pieces between sharp corners rest-to-rest
         cuts = [0, *corners, p.shape[0] - 1]
         return time_parameterize_phases(
             [(PhaseKind.MOTION, p[a : b + 1]) for a, b in itertools.pairwise(cuts)], limits, gridpoints=gridpoints
         )
-    return _time_path(densify(p, DENSIFY_STEP), limits, base=_has_base(limits), gridpoints=gridpoints, t0=t0)
+    return res
 
 
 def _time_path(p: FloatArray, limits: JointLimits, *, base: bool, gridpoints: int, t0: float) -> TimingResult:
