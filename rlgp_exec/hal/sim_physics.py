@@ -37,7 +37,23 @@ FloatArray = NDArray[np.float64]
 
 _FINGER_LEVER = 0.1  # [m] grasp force -> hand motor torque
 _DRAWER_FRICTION_N = 5.0  # [N] the drawer's slide friction
-_JOINT_FORCE = 300.0  # [N|Nm] position-control force of the arm/head joints
+_JOINT_FORCE = 300.0  # [N|Nm] position-control force of the arm/head joints (beyond their gravity load)
+_GRAVITY_MARGIN = 1.5  # the gravity load each motor may add, with this margin
+
+
+def gravity_load(model, samples: int = 64, seed: int = 0) -> NDArray[np.float64]:
+    """(nq_full,) the largest |gravity torque or force| [Nm | N] on each joint of the full tree over
+    ``samples`` random configurations within the limits (pinocchio, from the URDF's inertias)."""
+    import pinocchio as pin
+
+    pm = model.pin_model
+    data = pm.createData()
+    rng = np.random.default_rng(seed)
+    worst = np.zeros(pm.nv)
+    for _ in range(samples):
+        tau = pin.computeGeneralizedGravity(pm, data, model.full_q(model.random_q(rng)))
+        worst = np.maximum(worst, np.abs(tau))
+    return worst
 
 
 class SimRobot:
@@ -86,7 +102,10 @@ class SimRobot:
         self._ctrl_idx = [ji for ji, _ in self._ctrl]
         self._ctrl_q = [iq for _, iq in self._ctrl]
         self._model_j = [r.joint_index[n] for n in m.joint_names]
-        self._forces = np.full(len(self._ctrl), _JOINT_FORCE)
+        # the joint controllers carry the robot's weight (the HSR's gravity compensation, the PR2's torso
+        # motor and arm counterbalance): each motor may add the largest gravity load it sees (the PR2's
+        # torso lifts ~1200 N: with 300 N it sagged 14 cm below its setpoint over Zenoh)
+        self._forces = _JOINT_FORCE + _GRAVITY_MARGIN * gravity_load(m)[self._ctrl_q]
         vel_full = np.full(m.pin_model.nq, 10.0)
         for i in range(m.nq):
             for iq in np.flatnonzero(m.A[:, i]):
