@@ -17,7 +17,6 @@ import numpy as np
 
 from rlgp_exec.planning.nlp.keyframes import _target_surface
 from rlgp_exec.planning.symbolic.model import GroundProblem
-from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.robot.config import load_robot_config
 from rlgp_exec.scene import Scene
@@ -32,21 +31,13 @@ def goal_manipulator(scene: Scene) -> str:
     return load_robot_config(scene.robot.name).manipulators[0].name
 
 
-def _reachable(
-    ik: ReachIK, x: np.ndarray, graph: ReachabilityGraph | None = None, starts: int = 8, near: int = 5
-) -> bool:
+def _reachable(ik: ReachIK, x: np.ndarray, seeds: list[np.ndarray], starts: int = 8) -> bool:
     """Can the tool reach the point x (3,) [m] at all: position IK (Eq. 2: no orientation; the base only
     kept off the fixtures' footprints, the arm spheres out of them, as every keyframe must), warm-started
-    from the reachability graph's ``near`` nearest nodes (shifted onto x) and from ``starts`` base
-    headings. No PyBullet check: an IK answer's arbitrary hand would hit what a real grasp avoids, and a
-    relaxation must not reject what the keyframe NLP could solve."""
-    inits = []
-    if graph is not None:
-        for j in graph.nearest(x, near):
-            z = ik.z_of(graph.Q[j])
-            z[:2] += x[:2] - graph.X[j][:2]
-            inits.append(z)
-    inits += [ik.guess(x, 2 * math.pi * k / starts) for k in range(starts)]
+    from ``seeds`` (the reachability graph's nearest nodes) and from ``starts`` base headings. No
+    PyBullet check: an IK answer's arbitrary hand would hit what a real grasp avoids, and a relaxation
+    must not reject what the keyframe NLP could solve."""
+    inits = [*seeds, *(ik.guess(x, 2 * math.pi * k / starts) for k in range(starts))]
     return any(ik.solve(x, z0).ok for z0 in inits)
 
 
@@ -60,12 +51,12 @@ def unreachable_goal(geo, problem: GroundProblem) -> str | None:
             continue
         o = scene.object(atom[1])
         top = np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2])
-        if not _reachable(ik, top, geo.graph):
+        if not _reachable(ik, top, geo.rg.node_seeds(top, 5)):
             return f"infeasible: {o.name} cannot be reached where it is (no position IK reaches {top.round(3)} m)"
         if atom[0] == "on" and atom[2] not in problem_objects(scene):
             T, _, z = _target_surface(scene, atom[2])
             above = np.array([T[0, 3], T[1, 3], z + o.size[2]])
-            if not _reachable(ik, above, geo.graph):
+            if not _reachable(ik, above, geo.rg.node_seeds(above, 5)):
                 where = f"no position IK reaches {above.round(3)} m"
                 return f"infeasible: {atom[2]} cannot be reached to set {o.name} on it ({where})"
     return None

@@ -149,15 +149,9 @@ class SequenceGeometry:
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
         return replace(result, reason=" / ".join(reasons))
 
-    def _graph_seeds(self, x: FloatArray, k: int = 8) -> list[FloatArray]:
-        """Keyframe seeds for a hand target x: the graph's k nearest nodes (collision-free, reaching near
-        x), each with its base shifted by the node's offset from x."""
-        out = []
-        for j in self.graph.nearest(x, k):
-            z = self.ik.z_of(self.graph.Q[j])
-            z[:2] += np.asarray(x)[:2] - self.graph.X[j][:2]
-            out.append(z)
-        return out
+    def _graph_seeds(self, x: FloatArray) -> list[FloatArray]:
+        """Keyframe seeds for a hand target x: the graph's nearest nodes (collision-free, reaching near x)."""
+        return self.rg.node_seeds(x, 8)
 
     def _along_axis(self, q: FloatArray, cabinet: str, distance: float) -> FloatArray:
         """q with the base moved ``distance`` [m] along the cabinet's opening axis (out of it if > 0)."""

@@ -153,17 +153,23 @@ class ReachabilityPlanner:
             self.in_collision.attach(size, T_tool_obj)
 
     # ------------------------------------------------------------------ nodes
+    def node_seeds(self, x: FloatArray, k: int) -> list[FloatArray]:
+        """IK starts z for a hand target x: the k nearest nodes' configurations (nearest first), each
+        base shifted by the node's offset from x."""
+        out = []
+        for j in self.g.nearest(x, k):
+            z = self.ik.z_of(self.g.Q[j])
+            z[:2] += np.asarray(x)[:2] - self.g.X[j][:2]
+            out.append(z)
+        return out
+
     def _solve_node(self, x: FloatArray) -> tuple[FloatArray, float] | None:
         if self.ik.inside_fixture(x) is not None:
             return None
         near = self.g.nearest(x, 1)
         if near and float(np.linalg.norm(self.g.X[near[0]] - x)) < 1e-9:  # x is a node: its q is validated
             return self.g.Q[near[0]].copy(), float(self.g.C[near[0]])
-        inits = []
-        for j in self.g.nearest(x, 3):
-            z = self.ik.z_of(self.g.Q[j])
-            z[:2] += x[:2] - self.g.X[j][:2]
-            inits.append(z)
+        inits = self.node_seeds(x, 3)
         a0 = self.rng.uniform(-math.pi, math.pi)
         inits += [self.ik.guess(x, a0 + k * math.pi / 2) for k in range(4)]  # approach from four sides
         for z0 in inits:
