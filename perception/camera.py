@@ -93,10 +93,11 @@ class CameraIntrinsics:
 
 
 #: The robots' head cameras. HSR: the head RGB-D sensor's RGB stream (640x480, ~58 deg horizontal).
-#: PR2: the wide stereo camera (640x480, ~90 deg horizontal).
+#: PR2: the narrow stereo camera (640x480, ~55 deg horizontal; the wide one's 90 deg leaves a 4 cm tag
+#: ~7 px across at the far side of a table, under the detector's 10 px).
 CAMERAS: dict[str, CameraIntrinsics] = {
     "hsr": CameraIntrinsics.from_hfov(640, 480, 58.0),
-    "pr2": CameraIntrinsics.from_hfov(640, 480, 90.0),
+    "pr2": CameraIntrinsics.from_hfov(640, 480, 55.0),
 }
 
 

@@ -32,7 +32,7 @@ __all__ = ["Capture", "LookAroundResult", "candidate_points", "look_around", "lo
 log = logging.getLogger(__name__)
 Capture = Callable[[FloatArray], tuple[np.ndarray, FloatArray, float]]
 MAX_POINTING_ERROR = math.radians(5.0)
-VANTAGE_RADIUS = 0.6  # [m] from a point to a vantage base pose
+VANTAGE_RADII = (0.6, 0.8, 1.0)  # [m] from a point to a vantage base pose, tried in this order
 
 
 def lookout_q(model: RobotModel, q: FloatArray) -> FloatArray:
@@ -45,14 +45,18 @@ def lookout_q(model: RobotModel, q: FloatArray) -> FloatArray:
 
 
 def vantage_bases(
-    point: FloatArray, base_xy: FloatArray, radius: float = VANTAGE_RADIUS, n: int = 12
+    point: FloatArray, base_xy: FloatArray, radii: Sequence[float] = VANTAGE_RADII, n: int = 12
 ) -> list[FloatArray]:
-    """Base poses (x, y, yaw) on a circle around ``point``, facing it, nearest to ``base_xy`` first."""
+    """Base poses (x, y, yaw) on circles around ``point``, facing it: the nearest circle first (a
+    point 0.3 m inside a large table has no free base 0.6 m from it), nearest to ``base_xy`` within it."""
     out = []
-    for a in np.linspace(0.0, 2 * math.pi, n, endpoint=False):
-        xy = np.asarray(point[:2], float) + radius * np.array([math.cos(a), math.sin(a)])
-        out.append(np.array([xy[0], xy[1], math.atan2(point[1] - xy[1], point[0] - xy[0])]))
-    return sorted(out, key=lambda b: float(np.linalg.norm(b[:2] - base_xy)))
+    for radius in radii:
+        ring = []
+        for a in np.linspace(0.0, 2 * math.pi, n, endpoint=False):
+            xy = np.asarray(point[:2], float) + radius * np.array([math.cos(a), math.sin(a)])
+            ring.append(np.array([xy[0], xy[1], math.atan2(point[1] - xy[1], point[0] - xy[0])]))
+        out += sorted(ring, key=lambda b: float(np.linalg.norm(b[:2] - base_xy)))
+    return out
 
 
 @dataclass(frozen=True)

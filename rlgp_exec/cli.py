@@ -19,6 +19,7 @@ __all__ = ["main"]
 
 log = logging.getLogger("rlgp_exec")
 
+
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -123,6 +124,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"  base path {plan.base_path_length_m:.2f} m; replay: collision-free, goal met")
     else:
         print(f"  reason: {plan.reason}")
+    if args.plot:
+        import numpy as np
+
+        from rlgp_exec.planning.plot import plot_base_paths
+
+        xy = [np.concatenate([ph.path[:, :2] for ph in plan.phases if len(ph.path)])] if plan.success else []
+        out = plot_base_paths(scene, {args.planner: xy}, args.plot, f"{scene.name}: {args.planner} base path")
+        summary["plot"] = str(out)
+        print(f"  base path plot: {out}")
     _write_json(args.json, summary)
     return 0 if plan.success else 1
 
@@ -171,10 +181,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(report.text())
     _write_json(
         args.json,
-        {"complete": report.complete, "messages": report.messages, "states": report.states,
-         "duration_s": report.duration_s, "base_distance_m": report.base_distance_m,
-         "transitions": list(report.transitions), "results": list(report.results),
-         "collisions": list(report.collisions)},
+        {
+            "complete": report.complete,
+            "messages": report.messages,
+            "states": report.states,
+            "duration_s": report.duration_s,
+            "base_distance_m": report.base_distance_m,
+            "transitions": list(report.transitions),
+            "results": list(report.results),
+            "collisions": list(report.collisions),
+        },
     )
     return 0 if not report.collisions else 1
 
@@ -302,6 +318,8 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         return 0
     if not args.scene:
         raise RlgpError("give a SCENE file, or --image FILE --intrinsics W,H,fx,fy,cx,cy")
+    if args.plan:
+        return _perceive_and_plan(args)
     from perception.runner import perceive_scene
     from rlgp_exec.scene import load_scene
 
@@ -325,6 +343,57 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         },
     )
     return 0 if not res.missing else 1
+
+
+def _perceive_and_plan(args: argparse.Namespace) -> int:
+    from rlgp_exec.perceive_plan import perceive_and_plan
+
+    reports = []
+    for planner in args.plan.split(","):
+        r = perceive_and_plan(args.scene, planner, seed=args.seed, perturb_m=args.perturb)
+        print(r.text())
+        reports.append(r)
+    _write_json(
+        args.json,
+        {
+            "scene": reports[0].scene,
+            "perturb_m": args.perturb,
+            "seed": args.seed,
+            "runs": [
+                {
+                    "planner": r.planner,
+                    "views": r.views,
+                    "pos_err_mm": r.errors_mm,
+                    "unseen": list(r.unseen),
+                    "perceive_s": r.perceive_s,
+                    **r.plan.summary(),
+                    "true_world_collision_free": None if r.in_truth is None else r.in_truth.collision_free,
+                    "true_world_goal_met": None if r.in_truth is None else r.in_truth.goal_met,
+                    "ok": r.ok,
+                }
+                for r in reports
+            ],
+        },
+    )
+    return 0 if all(r.ok for r in reports) else 1
+
+
+def task_script(doc: str, scene: str, planners: str, perturb_m: float = 0.03, robots: tuple[str, ...] = ()) -> int:
+    """The ``tools/1x_*.py`` perception-to-plan scripts: ``perceive SCENE --plan PLANNERS`` on a shipped
+    scene with that script's defaults. ``scene`` may hold ``{robot}`` when ``robots`` lists the choices."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--planners", default=planners)
+    if robots:
+        ap.add_argument("--robot", choices=robots, default=robots[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--perturb", type=float, default=perturb_m, help="[m] how far the objects are from the file")
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    from rlgp_exec.demo import scene_path
+
+    path = scene_path(scene.format(robot=getattr(args, "robot", "")))
+    argv = ["perceive", str(path), "--plan", args.planners, "--seed", str(args.seed), "--perturb", str(args.perturb)]
+    return main(argv + (["--json", args.json] if args.json else []))
 
 
 # ---------------------------------------------------------------------------------- demo
@@ -355,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--seed", type=int, help="randomise object poses with this seed")
     s.add_argument("--json")
+    s.add_argument("--plot", help="write the plan's base path (top view of the scene) to this PNG")
     s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("run", help="plan and execute a scene's task through a HAL backend")
@@ -379,7 +449,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seeds", type=int, default=20)
     s.add_argument("--seed", type=int)
     s.add_argument(
-        "--workers", type=int, default=None,
+        "--workers",
+        type=int,
+        default=None,
         help="worker processes (reachability: default all cores; planners: default 1, seeds run in sequence)",
     )
     s.add_argument("--cluster", help="planners: a Dask scheduler address (tcp://host:8786) to run the sweep on")
@@ -396,6 +468,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--noise", type=float, default=2.0, help="pixel noise std [grey levels]")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--detector", choices=["opencv", "pupil"], default="opencv")
+    s.add_argument(
+        "--plan",
+        help="then plan on the perceived scene with these planners (comma-separated) and replay each plan "
+        "in the true world",
+    )
     s.add_argument("--json")
     s.set_defaults(func=cmd_perceive)
 

@@ -40,6 +40,17 @@ def camera_pose(world: World) -> FloatArray:
     return model.fk(world.robot.get_q(), model.config.frames["camera"])
 
 
+def _hide_housing(world: World) -> list[tuple[int, list[float]]]:
+    """Make the robot's camera housing links invisible; their (link, rgba) to restore."""
+    links = {world.robot.link_index[n] for n in world.robot_model.config.camera_housing}
+    hidden = []
+    for shape in p.getVisualShapeData(world.robot.id, physicsClientId=world.client):
+        if shape[1] in links:
+            hidden.append((shape[1], list(shape[7])))
+            p.changeVisualShape(world.robot.id, shape[1], rgbaColor=[1, 1, 1, 0], physicsClientId=world.client)
+    return hidden
+
+
 def render_camera(
     world: World,
     intrinsics: CameraIntrinsics,
@@ -51,16 +62,21 @@ def render_camera(
     view = np.linalg.inv(T @ _GL_FROM_OPTICAL)
     du, dv = TINY_RENDERER_SHIFT_PX
     render_model = replace(intrinsics, cx=intrinsics.cx - du, cy=intrinsics.cy - dv)
-    _, _, rgba, _, _ = p.getCameraImage(
-        intrinsics.width,
-        intrinsics.height,
-        view.T.reshape(-1).tolist(),
-        render_model.gl_projection(),
-        renderer=p.ER_TINY_RENDERER,
-        shadow=0,
-        lightDirection=list(effects.light_direction),
-        physicsClientId=world.client,
-    )
+    hidden = _hide_housing(world) if T_world_camera is None else []
+    try:
+        _, _, rgba, _, _ = p.getCameraImage(
+            intrinsics.width,
+            intrinsics.height,
+            view.T.reshape(-1).tolist(),
+            render_model.gl_projection(),
+            renderer=p.ER_TINY_RENDERER,
+            shadow=0,
+            lightDirection=list(effects.light_direction),
+            physicsClientId=world.client,
+        )
+    finally:
+        for link, rgba_link in hidden:
+            p.changeVisualShape(world.robot.id, link, rgbaColor=rgba_link, physicsClientId=world.client)
     img = np.asarray(rgba, dtype=np.uint8).reshape(intrinsics.height, intrinsics.width, 4)[:, :, :3].copy()
     if effects.blur_sigma > 0.0:
         img = cv2.GaussianBlur(img, (0, 0), effects.blur_sigma)

@@ -243,11 +243,26 @@ def test_perturbed_objects_in_sorting_hsr_are_recovered_within_5_mm_and_planned_
     assert max(res.yaw_errors_deg.values()) < 2.0
     moved = [n for n in res.errors_mm if res.scene.object(n).pose != scene.object(n).pose]
     assert sorted(moved) == ["block_blue", "block_green"] and not res.uncertain
-    # ... and the plan built from the perceived scene is valid under replay
-    from rlgp_exec.planning.rlgp import plan_scene
+    # ... and the plan built from the perceived scene holds in the true world (replayed there)
+    from rlgp_exec.perceive_plan import perceive_and_plan
 
-    plan = plan_scene(res.scene, "rlgp")
-    assert plan.success and plan.validation is not None and plan.validation.ok, plan.reason
+    r = perceive_and_plan(SCENES / "sorting_hsr.toml", "rlgp", seed=4, perturb_m=0.05)
+    assert r.plan.success, r.plan.reason
+    assert r.in_truth is not None and r.in_truth.ok and r.ok, r.text()
+
+
+@pytest.mark.parametrize("name", ["pick_place_pr2", "sorting_pr2"])
+def test_the_pr2_head_camera_finds_every_tagged_object_within_3_mm(name):
+    """The PR2's narrow stereo camera (its wide one saw 4 cm tags 7 px across); the head housing is not
+    drawn in its own images (TinyRenderer hung); a flip within the corner noise is resolved by the
+    upright prior (a 26 px tag gave an 11 deg tilt, 8 mm off); a block 0.3 m inside a 1.6 m table is
+    looked at from a base 0.8 m away when none 0.6 m away is free."""
+    scene = load_scene(SCENES / f"{name}.toml")
+    res = perceive_scene(scene, perturb_m=0.03, seed=0)
+    assert not res.missing and not res.uncertain, (res.missing, res.uncertain)
+    assert sorted(res.errors_mm) == sorted(o.name for o in scene.objects if o.tag is not None)
+    assert max(res.errors_mm.values()) < 3.0, res.errors_mm
+    assert max(res.yaw_errors_deg.values()) < 2.0, res.yaw_errors_deg
 
 
 def test_noisy_blurred_images_still_give_millimetre_poses(world):

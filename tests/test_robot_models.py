@@ -126,12 +126,37 @@ def test_self_collision_is_detected_when_the_arm_folds_into_the_body():
     client = p.connect(p.DIRECT)
     try:
         body = PyBulletRobot(robot, client)
-        q = robot.home(joints={"arm_flex_joint": -2.6, "arm_lift_joint": 0.0, "wrist_flex_joint": 0.0,
-                               "arm_roll_joint": 0.0})
+        q = robot.home(
+            joints={"arm_flex_joint": -2.6, "arm_lift_joint": 0.0, "wrist_flex_joint": 0.0, "arm_roll_joint": 0.0}
+        )
         body.set_q(q)
         tool_z = robot.fk(q, "hand_tool_frame")[2, 3]
         assert tool_z < 0.31  # the hand is down inside the base cylinder
         assert any(c.is_self or c.other_body == body.id for c in body.contacts())
+    finally:
+        p.disconnect(client)
+
+
+def test_the_hsr_wrist_folds_to_its_limit_without_touching_the_arm():
+    """The real arm folds its wrist to -1.92 rad; our primitive arm link reached 7 mm into the wrist's
+    and every keyframe that used the limit was refused as a self-collision (a block moved 2 cm made
+    the shelf task unplannable)."""
+    robot = load_robot("hsr")
+    client = p.connect(p.DIRECT)
+    try:
+        body = PyBulletRobot(robot, client)
+        a, b = body.link_index["arm_flex_link"], body.link_index["wrist_ft_sensor_mount_link"]
+        rng = np.random.default_rng(0)
+        lo, hi = robot.limits.lower, robot.limits.upper
+        for _ in range(300):
+            joints = {
+                n: rng.uniform(lo[robot.index(n)], hi[robot.index(n)])
+                for n in ("arm_flex_joint", "arm_roll_joint", "wrist_roll_joint")
+            }
+            joints["wrist_flex_joint"] = lo[robot.index("wrist_flex_joint")]
+            body.set_q(robot.home(joints=joints))
+            for c in p.getClosestPoints(body.id, body.id, 0.01, a, b, physicsClientId=client):
+                assert c[8] > 0.0, (joints, c[8])
     finally:
         p.disconnect(client)
 
@@ -142,8 +167,13 @@ def test_limits_carry_continuous_joints_and_base_speeds():
     assert list(hsr.limits.velocity[:3]) == [0.2, 0.2, 1.0]
     assert list(np.flatnonzero(hsr.limits.continuous)) == [2]
     cont = {pr2.limits.names[i] for i in np.flatnonzero(pr2.limits.continuous)}
-    assert cont == {"base_yaw", "r_forearm_roll_joint", "r_wrist_roll_joint", "l_forearm_roll_joint",
-                    "l_wrist_roll_joint"}
+    assert cont == {
+        "base_yaw",
+        "r_forearm_roll_joint",
+        "r_wrist_roll_joint",
+        "l_forearm_roll_joint",
+        "l_wrist_roll_joint",
+    }
     assert pr2.nq == 3 + 1 + 7 + 7 + 2 + 2
     assert len(pr2.group("right_arm")) == 7 and len(pr2.group("left_arm")) == 7
 

@@ -92,8 +92,10 @@ def test_robot_camera_view_renders_the_scene():
 
 def test_show_writes_a_png_with_the_scene_colours(tmp_path):
     out = tmp_path / "scene.png"
-    assert main(["show", str(scene_path("table_clearing_hsr")), "--png", str(out), "--width", "480",
-                 "--height", "360"]) == 0
+    assert (
+        main(["show", str(scene_path("table_clearing_hsr")), "--png", str(out), "--width", "480", "--height", "360"])
+        == 0
+    )
     img = cv2.imread(str(out))
     assert img is not None and img.shape == (360, 480, 3)
     assert len(np.unique(img.reshape(-1, 3) // 32, axis=0)) > 8  # many distinct colours, not a flat image
@@ -105,6 +107,44 @@ def test_cli_reports_bad_scene_files_with_exit_code_2(tmp_path, capsys):
     assert main(["show", str(bad), "--png", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
     assert "bad.toml" in err and "robot" in err
+
+
+def test_cli_plan_writes_the_contract_json_and_the_base_path_plot(tmp_path):
+    """``rlgp-exec plan SCENE --json F --plot F`` (DESIGN.md's command-line contract)."""
+    import json
+
+    shelf = Path(__file__).resolve().parent / "data" / "shelf_hsr.toml"
+    js, png = tmp_path / "plan.json", tmp_path / "plan.png"
+    assert main(["plan", str(shelf), "--json", str(js), "--plot", str(png)]) == 0
+    out = json.loads(js.read_text())
+    for key in (
+        "success",
+        "planner",
+        "planning_time_s",
+        "actions",
+        "n_steps",
+        "base_path_length_m",
+        "collision_free",
+        "n_nlp",
+    ):
+        assert key in out, key
+    assert out["success"] and out["collision_free"] and out["actions"] == ["(pick block)", "(place block tray)"]
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[0] > 200 and out["plot"] == str(png)
+
+
+def test_cli_perceive_then_plan_checks_the_plan_in_the_true_world(tmp_path, capsys):
+    """``rlgp-exec perceive SCENE --plan rlgp`` (what the numbered tools/1x scripts run): objects 3 cm
+    off the file, perceived, planned on, the plan replayed in the true world."""
+    import json
+
+    shelf = Path(__file__).resolve().parent / "data" / "shelf_hsr.toml"
+    js = tmp_path / "pp.json"
+    assert main(["perceive", str(shelf), "--plan", "rlgp", "--perturb", "0.03", "--json", str(js)]) == 0
+    run = json.loads(js.read_text())["runs"][0]
+    assert run["success"] and run["true_world_collision_free"] and run["true_world_goal_met"] and run["ok"]
+    assert run["pos_err_mm"]["block"] < 3.0 and run["unseen"] == []
+    assert "in the true world: collision-free, goal met" in capsys.readouterr().out
 
 
 def test_run_refuses_perception_off_the_simulator(capsys):
@@ -149,3 +189,28 @@ def test_the_simulated_pr2_holds_its_torso_and_arm_up_against_gravity():
         sim.step(0.01)
     got = np.array([sim.measured_q()[m.index(n)] for n in names])
     assert np.all(np.abs(got - target) < 0.01), dict(zip(names, got - target, strict=True))
+
+
+def test_a_continuous_joint_crosses_pi_the_short_way():
+    """Setpoints arrive wrapped to [-pi, pi): the PR2's forearm roll going -3.0 -> -3.3 (= +2.98) must
+    turn 0.3 rad on, not spin a turn back (it did: the executive stopped, 0.155 rad off while carrying)."""
+    import math
+
+    from rlgp_exec.hal.sim_physics import SimRobot
+    from rlgp_exec.hal.types import JointSetpoint
+    from rlgp_exec.robot.limits import wrap_angle
+
+    sim = SimRobot("pr2")
+    i = sim.model.index("r_forearm_roll_joint")
+    names = ("r_forearm_roll_joint",)
+    for k in range(301):  # to -3.0 in 1 s, hold, then on to -3.3 through -pi at 0.3 rad/s
+        a = -3.0 * min(1.0, k / 100) if k <= 200 else -3.0 - 0.3 * min(1.0, (k - 200) / 100)
+        sim.set_joint_targets(JointSetpoint(names, (float(wrap_angle(a)),), (0.0,)))
+        sim.step(0.01)
+        if k > 200:
+            err = abs(math.remainder(sim.measured_q()[i] - a, 2 * math.pi))
+            assert err < 0.05, (k, a, sim.measured_q()[i])
+    for _ in range(100):
+        sim.step(0.01)
+    assert abs(math.remainder(sim.measured_q()[i] - (-3.3), 2 * math.pi)) < 0.01
+    assert -math.pi <= sim.measured_q()[i] < math.pi  # reported wrapped

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from rlgp_exec.hal.types import GripperAction, GripperCommand, JointSetpoint, RobotState
 from rlgp_exec.hal.validate import CommandLimits
 from rlgp_exec.robot import load_robot
+from rlgp_exec.robot.limits import wrap_angle
 from rlgp_exec.robot.pybullet_body import PyBulletRobot
 from rlgp_exec.scene import Scene
 
@@ -81,10 +82,21 @@ class SimRobot:
             for name, cab in self.world.cabinets.items():
                 self.cabinets[name] = (cab.body, cab.drawer_joint)
                 # a free drawer with some friction, inside its travel: the hand on the knob moves it
-                p.changeDynamics(cab.body, cab.drawer_joint, jointLowerLimit=0.0, jointUpperLimit=cab.travel,
-                                 physicsClientId=self.client)
-                p.setJointMotorControl2(cab.body, cab.drawer_joint, p.VELOCITY_CONTROL, targetVelocity=0.0,
-                                        force=_DRAWER_FRICTION_N, physicsClientId=self.client)
+                p.changeDynamics(
+                    cab.body,
+                    cab.drawer_joint,
+                    jointLowerLimit=0.0,
+                    jointUpperLimit=cab.travel,
+                    physicsClientId=self.client,
+                )
+                p.setJointMotorControl2(
+                    cab.body,
+                    cab.drawer_joint,
+                    p.VELOCITY_CONTROL,
+                    targetVelocity=0.0,
+                    force=_DRAWER_FRICTION_N,
+                    physicsClientId=self.client,
+                )
         else:
             self.client = p.connect(p.DIRECT)
             p.setGravity(0, 0, -9.81, physicsClientId=self.client)
@@ -127,7 +139,7 @@ class SimRobot:
         self._constraint: int | None = None
         self._base_cmd = np.zeros(3)
         self._base_cmd_t = -math.inf
-        self._q_target = self.measured_q()
+        self._q_target = self._physical_q()  # motor targets, continuous joints unwrapped
         self._dq_target = np.zeros(m.nq)
         self.last_step_wall = time.monotonic()
         self._apply()
@@ -137,9 +149,13 @@ class SimRobot:
         """Position/velocity targets for some joints; False (ignored) while e-stopped."""
         if self.estopped:
             return False
+        q_now = self._physical_q()
+        continuous = self.model.limits.continuous
         for n, q, dq in zip(sp.names, sp.q, sp.dq, strict=True):
             i = self.model.index(n)
-            self._q_target[i] = q
+            # a continuous joint's target comes wrapped to [-pi, pi): the motor goes the short way from
+            # where the joint physically is (3.11 after -3.08 is 0.05 rad on, not a turn back)
+            self._q_target[i] = q_now[i] + wrap_angle(q - q_now[i]) if continuous[i] else q
             self._dq_target[i] = dq
         return True
 
@@ -174,7 +190,7 @@ class SimRobot:
 
     def estop(self, engaged: bool) -> None:
         if engaged and not self.estopped:
-            self._q_target = self.measured_q()  # hold here (base entries are unused: velocity control)
+            self._q_target = self._physical_q()  # hold here (base entries are unused: velocity control)
             self._dq_target[:] = 0.0
             self._grasping = False
         if engaged:
@@ -302,9 +318,14 @@ class SimRobot:
         return pose_to_matrix(pos, orn)
 
     # ------------------------------------------------------------------ state
-    def measured_q(self) -> FloatArray:
+    def _physical_q(self) -> FloatArray:
+        """Joint positions as PyBullet integrates them (continuous joints not wrapped), (nq,)."""
         st = p.getJointStates(self.robot.id, self._model_j, physicsClientId=self.client)
-        return self.model.limits.wrap(np.array([s[0] for s in st]))
+        return np.array([s[0] for s in st])
+
+    def measured_q(self) -> FloatArray:
+        """Joint positions (nq,), continuous joints wrapped to [-pi, pi)."""
+        return self.model.limits.wrap(self._physical_q())
 
     def state(self) -> RobotState:
         st = p.getJointStates(self.robot.id, self._model_j, physicsClientId=self.client)

@@ -61,6 +61,8 @@ class RobotConfig:
     folder: Path
     #: joint overrides for looking around (e.g. a raised lift)
     lookout: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    #: links around the head camera that its own images do not show (the camera looks out of them)
+    camera_housing: tuple[str, ...] = ()
 
     def manipulator(self, name: str | None = None) -> Manipulator:
         """The named manipulator, or the first one."""
@@ -95,8 +97,13 @@ def load_robot_config(name: str) -> RobotConfig:
     groups = {k: tuple(v) for k, v in _get(raw, "groups", where).items()}
     manips = tuple(
         Manipulator(
-            name=m["name"], group=m["group"], gripper=m["gripper"], tool_frame=m["tool_frame"],
-            palm_frame=m["palm_frame"], open=float(m["open"]), closed=float(m["closed"]),
+            name=m["name"],
+            group=m["group"],
+            gripper=m["gripper"],
+            tool_frame=m["tool_frame"],
+            palm_frame=m["palm_frame"],
+            open=float(m["open"]),
+            closed=float(m["closed"]),
             links=tuple(m.get("links", ())),
             approach=tuple(float(v) for v in m.get("approach", (0.0, 0.0, 1.0))),  # type: ignore[arg-type]
             closing=tuple(float(v) for v in m.get("closing", (0.0, 1.0, 0.0))),  # type: ignore[arg-type]
@@ -130,4 +137,5 @@ def load_robot_config(name: str) -> RobotConfig:
         floor_contact=tuple(col.get("floor_contact", ())),
         folder=folder,
         lookout=MappingProxyType({k: float(v) for k, v in raw.get("lookout", {}).items()}),
+        camera_housing=tuple(raw.get("camera", {}).get("housing", ())),
     )
