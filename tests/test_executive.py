@@ -322,6 +322,49 @@ def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, t
     assert [d["to"] for _, d in R.topic("/transitions")][-1] == "fault"
 
 
+def test_zenoh_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(robot_process):
+    """Over Zenoh against the sim-robot process: the e-stop pressed mid-motion (from another thread)
+    lets no setpoint out after it, the robot holds, and the executive refuses to move until re-armed."""
+    _, ep = robot_process
+    scene = load_scene(SCENE)
+    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
+    try:
+        time.sleep(0.5)
+        ex = Executive(hal, scene, objects)
+        sent_after: list[bool] = []
+        calls = {"n": 0}
+        original = hal.write_setpoint
+
+        def counting(*a, **k):
+            res = original(*a, **k)
+            calls["n"] += 1
+            if ex.signals.estop.is_set():
+                sent_after.append(bool(res))
+            if calls["n"] == 150:  # mid-motion, 1.5 s into the first segment
+                threading.Thread(target=ex.estop).start()
+            return res
+
+        hal.write_setpoint = counting  # type: ignore[method-assign]
+        result = ex.run()
+        assert result.status is TaskStatus.ESTOPPED, result.detail
+        assert sent_after == [], "a setpoint went out after the e-stop was requested"
+        time.sleep(0.3)
+        q0 = np.asarray(hal.read_state().q)
+        time.sleep(1.0)
+        st = hal.read_state()
+        assert st.estopped and np.abs(np.asarray(st.q) - q0).max() < 2e-3  # the robot holds, latched
+        assert ex.run().status is TaskStatus.ESTOPPED  # refused until re-armed
+        ex.rearm()
+        assert ex.sm.state is ExecState.IDLE
+        deadline = time.monotonic() + 2.0  # the release reaches the robot, its state comes back
+        while hal.read_state().estopped and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not hal.read_state().estopped
+    finally:
+        objects.close()
+        hal.shutdown()
+
+
 def test_zenoh_pick_place_pr2_reaches_its_goal(tmp_path):
     """The PR2 over its Zenoh interface (arm, torso, head controllers and base) against a sim-robot
     process: R-LGP, TOPPRA, Ruckig at 100 Hz, three blocks onto the tray, verified on the mocap poses.
