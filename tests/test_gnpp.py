@@ -126,6 +126,44 @@ def test_feasible_database_hit_avoids_a_solve(pr2):
     assert solver.n_solves == 2
 
 
+def test_the_database_answers_across_calls_only_where_the_initial_poses_agree(pr2):
+    """PlannerMemory keeps GNPP's database for the executive's replans: subgraphs that rest on an
+    object's initial pose (``Ref``) answer only while that pose holds; the others answer in any call."""
+    from rlgp_exec.planning.memory import PlannerMemory
+
+    scene = _tower(["b1", "b2"], ["(on b1 goal_region)", "(on b2 b1)"])
+    lib = FactorLib(pr2, scene)
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    plan = [GroundAction.parse(a) for a in ("(pick left_arm b1 table)", "(place left_arm b1 goal_region)")]
+    states = task.simulate(plan)
+    graph = relax(factors_of(states, lib.arms, ["b1", "b2"]), Relaxation.NO_COL)
+    db = SubgraphDB()
+    db.bind(lib.call_context())
+    check = Checker(GraphSolver(lib), initial_guess(lib, TopIK(lib), states, variables(graph)), db)
+    assert check.feasible(graph)
+    moved = dataclasses.replace(
+        scene,
+        objects=tuple(dataclasses.replace(o, pose=(o.pose[0] + 0.03, *o.pose[1:])) if o.name == "b1" else o
+                      for o in scene.objects),
+    )
+    comps = components(graph)
+    on_b1 = [c for c in comps if any(f.key == ("Ref", "b1") for f in c)]
+    assert on_b1 and len(on_b1) < len(comps)
+    db.bind(FactorLib(pr2, moved).call_context())
+    for c in comps:
+        assert db.lookup(c) is (None if c in on_b1 else True)
+    db.bind(lib.call_context())
+    assert all(db.lookup(c) is True for c in comps)
+
+    # through the planner: the second call on the same problem solves fewer NLPs; a moved block plans
+    mem = PlannerMemory()
+    first = plan_gnpp(scene, "gnpp_trng", timeout_s=90.0, memory=mem).plan
+    again = plan_gnpp(scene, "gnpp_trng", timeout_s=90.0, memory=mem).plan
+    assert first.success and again.success and len(mem.subgraph_dbs) == 1
+    assert again.counters["nlp"] < first.counters["nlp"] and again.counters["db_hits"] > 0
+    assert plan_gnpp(moved, "gnpp_trng", timeout_s=90.0, memory=mem).plan.success
+
+
 def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
     """b4 and b5 are each reachable by one arm only; a goal needing b5 in the left hand is impossible."""
     scene = _tower(["b5"], ["(on b5 goal_region)"])

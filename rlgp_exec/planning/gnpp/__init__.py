@@ -16,10 +16,11 @@ __all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "
 
 
 def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
-    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:  # (no memory: see memory.py)
+    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:
         from dataclasses import replace
 
-        return replace(plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S).plan, planner=name)
+        res = plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S, memory=memory)
+        return replace(res.plan, planner=name)
 
     return run
 

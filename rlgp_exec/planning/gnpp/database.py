@@ -6,13 +6,19 @@ The test is networkx's VF2 matcher on the labelled bipartite graphs of ``graph.s
 (variable nodes by (kind, owner), factor nodes by function key, edges by argument slot; time indices
 are left out), as a monomorphism: the smaller graph's factors must all appear, with the same variables
 shared the same way, in the larger one. A count of labels filters candidates before VF2 runs.
+
+A database outlives one planning call (the executive's replans keep it in ``PlannerMemory``): the
+factors whose meaning depends on the call's numbers — an object's initial pose (``Ref``), an arm's
+initial configuration (``RefQ``) — are labelled with a digest of those numbers (:meth:`SubgraphDB.bind`),
+so a subgraph learnt with a block at one place never answers for the block somewhere else, while
+one without such factors (a grasp and a placement out of one arm's reach) answers in every call.
 """
 
 from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import networkx as nx
@@ -35,8 +41,8 @@ class _Entry:
     labels: Counter
 
 
-def _entry(factors: Sequence[Factor]) -> _Entry:
-    g = semantic_graph(factors)
+def _entry(factors: Sequence[Factor], context: Mapping[tuple[str, ...], str]) -> _Entry:
+    g = semantic_graph(factors, context)
     return _Entry(g, Counter(d["label"] for _, d in g.nodes(data=True)))
 
 
@@ -53,13 +59,18 @@ class SubgraphDB:
         self.feasible: list[_Entry] = []
         self.infeasible: list[_Entry] = []
         self.hits = 0
+        self.context: dict[tuple[str, ...], str] = {}
+
+    def bind(self, context: Mapping[tuple[str, ...], str]) -> None:
+        """The current call's digests per factor key (see the module docstring); used from now on."""
+        self.context = dict(context)
 
     def add(self, factors: Sequence[Factor], feasible: bool) -> None:
-        (self.feasible if feasible else self.infeasible).append(_entry(factors))
+        (self.feasible if feasible else self.infeasible).append(_entry(factors, self.context))
 
     def lookup(self, factors: Sequence[Factor]) -> bool | None:
         """True if known feasible, False if known infeasible, None if unknown."""
-        q = _entry(factors)
+        q = _entry(factors, self.context)
         if any(_contains(e, q) for e in reversed(self.feasible)):
             self.hits += 1
             return True

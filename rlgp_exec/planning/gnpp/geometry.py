@@ -115,6 +115,17 @@ class FactorLib:
             q[self.arm_index(arm)] = qa
         return q
 
+    def call_context(self) -> dict[tuple[str, ...], str]:
+        """Digests of the numbers behind this call's ``Ref`` (initial object poses) and ``RefQ`` (initial
+        arm configurations) factors, for :meth:`SubgraphDB.bind` (0.1 mm / 0.1 mrad resolution)."""
+
+        def digest(v: FloatArray) -> str:
+            return ",".join(f"{x:.4f}" for x in np.asarray(v, float))
+
+        ctx = {("Ref", o): digest(self.start_pose(o)) for o in self.objects}
+        ctx.update({("RefQ", m): digest(self.home_q(m)) for m in self.arms})
+        return ctx
+
     def start_pose(self, obj: str) -> FloatArray:
         o = self.objects[obj]
         return np.array([o.pose[0], o.pose[1], o.pose[2], o.pose[3]], float)

@@ -8,7 +8,7 @@ A subgraph is represented by its factors (Def. 4.2 with X_M = the variables its 
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import networkx as nx
 
@@ -96,12 +96,14 @@ def time_slice(factors: Iterable[Factor], first: int, last: int) -> list[Factor]
     return [f for f in factors if f.times[0] >= first and f.times[1] <= last]
 
 
-def semantic_graph(factors: Iterable[Factor]) -> nx.Graph:
+def semantic_graph(factors: Iterable[Factor], context: Mapping[tuple[str, ...], str] | None = None) -> nx.Graph:
     """The labelled bipartite graph: variable nodes labelled (kind, owner), factor nodes labelled by
-    their function key, edges by the variable's slot in the factor (time indices left out)."""
+    their function key (plus ``context[key]`` where the call's numbers give the key its meaning, e.g. an
+    object's initial pose), edges by the variable's slot in the factor (time indices left out)."""
     g = nx.Graph()
+    ctx = context or {}
     for i, f in enumerate(factors):
-        g.add_node(("f", i), label=("f", *f.key))
+        g.add_node(("f", i), label=("f", *f.key, *((ctx[f.key],) if f.key in ctx else ())))
         for slot, v in enumerate(f.vars):
             g.add_node(v, label=v.label)
             g.add_edge(("f", i), v, slot=slot)

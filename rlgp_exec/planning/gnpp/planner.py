@@ -29,6 +29,7 @@ from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
 from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.symbolic import (
     FDStatus,
@@ -109,8 +110,10 @@ def plan_gnpp(
     logic: Logic = Logic.INTERNAL,
     timeout_s: float = 60.0,
     max_iterations: int = 300,
+    memory: PlannerMemory | None = None,
 ) -> GnppResult:
-    """Plan the scene's goal with a GNPP variant (see ``VARIANTS``)."""
+    """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
+    database (variants with one) is the one earlier calls in this environment filled."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     opts = VARIANTS[variant]
@@ -118,7 +121,12 @@ def plan_gnpp(
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
-    db = SubgraphDB() if opts is not None and opts.database else None
+    db = None
+    if opts is not None and opts.database:
+        arm_idx = {int(i) for m in lib.arms for i in lib.arm_index(m)}
+        fixed = {n: float(lib.q_nominal[i]) for i, n in enumerate(model.joint_names) if i not in arm_idx}
+        db = SubgraphDB() if memory is None else memory.subgraph_db(scene, fixed)
+        db.bind(lib.call_context())
     task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
     objects = [o.name for o in scene.objects]
     forbidden: list[ForbiddenSequence] = []
