@@ -20,6 +20,7 @@ why not.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import math
@@ -195,6 +196,21 @@ def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> tu
     return float(v_ratio.max()), float((np.abs(ddq) / a_lim).max())
 
 
+@functools.lru_cache(maxsize=64)
+def _constraints(v: tuple[float, ...], a: tuple[float, ...]) -> tuple:
+    """TOPPRA's (velocity, acceleration, left-hand acceleration) constraints for these limits, built once:
+    their constructors format the limit arrays into strings (a quarter of a retiming's time). They hold
+    no per-path state, so instances are shared."""
+    vv, aa = np.asarray(v), np.asarray(a)
+    return (
+        ta_con.JointVelocityConstraint(np.c_[-vv, vv]),
+        ta_con.JointAccelerationConstraint(
+            np.c_[-aa, aa], discretization_scheme=ta_con.DiscretizationType.Interpolation
+        ),
+        _LeftAcceleration(np.c_[-aa, aa], discretization_scheme=ta_con.DiscretizationType.Collocation),
+    )
+
+
 def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
     v, a = limits.velocity, limits.acceleration.copy()
     if base:
@@ -214,17 +230,14 @@ def _solve(path: PchipPath, limits: JointLimits, base: bool, gridpoints: int):
             return out
 
         pc_v = ta_con.JointVelocityConstraintVarying(vlim)
+        _, pc_a, pc_a_left = _constraints(tuple(v), tuple(a))
     else:
-        pc_v = ta_con.JointVelocityConstraint(np.c_[-v, v])
-    pc_a = ta_con.JointAccelerationConstraint(
-        np.c_[-a, a], discretization_scheme=ta_con.DiscretizationType.Interpolation
-    )
+        pc_v, pc_a, pc_a_left = _constraints(tuple(v), tuple(a))
     # PCHIP's second derivative jumps at the waypoints: each waypoint is a gridpoint, and TOPPRA must see
     # both one-sided values there. First try: a second gridpoint just before each waypoint. That tiny
     # interval can make the instance uncontrollable where a joint reverses; second: the left-hand value
     # as a collocated constraint at the waypoint; last: the waypoints alone (verification catches the rest).
     inner = path.waypoints[0][1:-1]
-    pc_a_left = _LeftAcceleration(np.c_[-a, a], discretization_scheme=ta_con.DiscretizationType.Collocation)
     uniform = np.linspace(0.0, 1.0, max(gridpoints + 1 - 2 * len(inner), 2))
     tries = (
         (np.r_[uniform, inner, inner - 1e-6], [pc_v, pc_a]),
