@@ -144,3 +144,33 @@ def test_finger_spheres_cover_the_whole_finger_box():
         for x in np.vstack([pts, corners]):
             assert min(np.linalg.norm(x - c) - r for c, r in spheres) <= 1e-12
         assert max(r for _, r in spheres) <= 0.75 * float(np.sort(size)[1] + np.sort(size)[0])  # not wildly fat
+
+
+def test_a_graph_seed_in_front_of_a_table_is_pushed_clear_not_dropped():
+    """The PR2's graph nodes in front of pick_place_pr2's table stand clear of its real base mesh but
+    not of the NLP's footprint circles: dropped, every seed came from behind the table (18 m of base
+    path for three blocks). Pushed out, the base is clear and moved no more than needed."""
+    import math
+
+    from rlgp_exec.planning.nlp.keyframes import _base_free, _push_free
+    from rlgp_exec.reach import ReachIK, nominal_q
+    from rlgp_exec.robot import load_robot
+    from rlgp_exec.scene import load_scene
+    from rlgp_exec.scene.geometry import fixture_boxes
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "sim" / "scenes" / "pick_place_pr2.toml")
+    model = load_robot("pr2")
+    ik = ReachIK(model, scene, nominal_q(model, scene))
+    rects = [(b.T, np.asarray(b.size)) for fx in scene.fixtures for b in fixture_boxes(fx)]
+    edge = min(b.T[1, 3] - b.size[1] / 2 for fx in scene.fixtures for b in fixture_boxes(fx))  # front [m]
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        z = ik.z_of(nominal_q(model, scene))
+        z[:3] = [rng.uniform(-0.5, 0.5), edge - rng.uniform(0.25, 0.45), math.pi / 2 + rng.uniform(-0.5, 0.5)]
+        pushed = _push_free(ik, z, rects)
+        assert pushed is not None and _base_free(ik, pushed, rects, exact=True)
+        assert pushed[1] <= z[1] + 1e-12 and np.allclose(pushed[2:], z[2:])  # away from the table, only the base
+        if _base_free(ik, z, rects, exact=True):
+            assert np.array_equal(pushed, z)
+    z[:2] = [0.0, 0.0]  # in the middle of the table: too far to push
+    assert _push_free(ik, z, rects) is None
