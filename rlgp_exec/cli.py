@@ -19,7 +19,6 @@ __all__ = ["main"]
 
 log = logging.getLogger("rlgp_exec")
 
-
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -181,16 +180,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(report.text())
     _write_json(
         args.json,
-        {
-            "complete": report.complete,
-            "messages": report.messages,
-            "states": report.states,
-            "duration_s": report.duration_s,
-            "base_distance_m": report.base_distance_m,
-            "transitions": list(report.transitions),
-            "results": list(report.results),
-            "collisions": list(report.collisions),
-        },
+        {"complete": report.complete, "messages": report.messages, "states": report.states,
+         "duration_s": report.duration_s, "base_distance_m": report.base_distance_m,
+         "transitions": list(report.transitions), "results": list(report.results),
+         "collisions": list(report.collisions)},
     )
     return 0 if not report.collisions else 1
 
@@ -348,11 +341,9 @@ def cmd_perceive(args: argparse.Namespace) -> int:
 def _perceive_and_plan(args: argparse.Namespace) -> int:
     from rlgp_exec.perceive_plan import perceive_and_plan
 
-    reports = []
-    for planner in args.plan.split(","):
-        r = perceive_and_plan(args.scene, planner, seed=args.seed, perturb_m=args.perturb)
+    reports = perceive_and_plan(args.scene, args.plan.split(","), seed=args.seed, perturb_m=args.perturb)
+    for r in reports:
         print(r.text())
-        reports.append(r)
     _write_json(
         args.json,
         {
@@ -449,9 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seeds", type=int, default=20)
     s.add_argument("--seed", type=int)
     s.add_argument(
-        "--workers",
-        type=int,
-        default=None,
+        "--workers", type=int, default=None,
         help="worker processes (reachability: default all cores; planners: default 1, seeds run in sequence)",
     )
     s.add_argument("--cluster", help="planners: a Dask scheduler address (tcp://host:8786) to run the sweep on")

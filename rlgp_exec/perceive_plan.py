@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +33,7 @@ class PerceivePlanReport:
     views: int  # camera images taken
     errors_mm: dict[str, float]  # per tagged object: perceived vs true position [mm]
     unseen: tuple[str, ...]  # tagged objects perception did not find (they keep their file poses)
-    perceive_s: float  # [s] wall time
+    perceive_s: float  # [s] wall time (one perception serves every planner of a call)
     plan: Plan
     in_truth: Validation | None  # the plan replayed in the true world; None if there is no plan
 
@@ -63,10 +64,10 @@ class PerceivePlanReport:
 
 
 def perceive_and_plan(
-    scene_file: str | Path, planner: str = "rlgp", seed: int = 0, perturb_m: float = 0.03
-) -> PerceivePlanReport:
-    """Perceive ``scene_file``'s world (objects moved by up to ``perturb_m`` [m], seeded), plan on the
-    perceived scene with ``planner`` and replay the plan in the true world."""
+    scene_file: str | Path, planners: Sequence[str] = ("rlgp",), seed: int = 0, perturb_m: float = 0.03
+) -> list[PerceivePlanReport]:
+    """Perceive ``scene_file``'s world once (objects moved by up to ``perturb_m`` [m], seeded), plan on
+    the perceived scene with each of ``planners`` and replay each plan in the true world."""
     from perception.runner import perceive_scene, perturbed_scene
     from rlgp_exec.planning.registry import plan as run_planner
     from rlgp_exec.planning.validate import validate_plan
@@ -85,15 +86,20 @@ def perceive_and_plan(
     t0 = time.perf_counter()
     seen = perceive_scene(scene, perturb_m=perturb_m, seed=seed)
     perceive_s = time.perf_counter() - t0
-    plan = run_planner(seen.scene, planner, seed=seed)
-    in_truth = validate_plan(truth, plan.phases) if plan.success else None
-    return PerceivePlanReport(
-        scene.name,
-        planner,
-        seen.views,
-        dict(seen.errors_mm),
-        tuple(sorted(seen.missing)),
-        perceive_s,
-        plan,
-        in_truth,
-    )
+    reports = []
+    for planner in planners:
+        plan = run_planner(seen.scene, planner, seed=seed)
+        in_truth = validate_plan(truth, plan.phases) if plan.success else None
+        reports.append(
+            PerceivePlanReport(
+                scene.name,
+                planner,
+                seen.views,
+                dict(seen.errors_mm),
+                tuple(sorted(seen.missing)),
+                perceive_s,
+                plan,
+                in_truth,
+            )
+        )
+    return reports

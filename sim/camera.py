@@ -43,6 +43,8 @@ def camera_pose(world: World) -> FloatArray:
 def _hide_housing(world: World) -> list[tuple[int, list[float]]]:
     """Make the robot's camera housing links invisible; their (link, rgba) to restore."""
     links = {world.robot.link_index[n] for n in world.robot_model.config.camera_housing}
+    if not links:
+        return []
     hidden = []
     for shape in p.getVisualShapeData(world.robot.id, physicsClientId=world.client):
         if shape[1] in links:

@@ -176,8 +176,10 @@ def test_sense_plan_act_reaches_the_goal_and_the_recording_replays(sim_exec):
     assert report.results and report.results[-1].startswith("succeeded")
 
 
-def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_exec):
-    ex, hal, _ = sim_exec
+def _press_estop_mid_motion(ex, hal, after: int = 150, in_thread: bool = False) -> list[bool]:
+    """Wrap ``hal.write_setpoint``: the e-stop is pressed at the ``after``-th setpoint (mid-motion), from
+    another thread with ``in_thread``; returns the list that collects, for every setpoint written once
+    the e-stop is requested, whether the HAL accepted it (it must stay empty)."""
     sent_after: list[bool] = []
     calls = {"n": 0}
     original = hal.write_setpoint
@@ -187,11 +189,19 @@ def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_e
         calls["n"] += 1
         if ex.signals.estop.is_set():
             sent_after.append(bool(res))
-        if calls["n"] == 150:  # mid-motion: the button is pressed (as from another thread)
+        if calls["n"] == after and in_thread:
+            threading.Thread(target=ex.estop).start()
+        elif calls["n"] == after:
             ex.estop()
         return res
 
     hal.write_setpoint = counting  # type: ignore[method-assign]
+    return sent_after
+
+
+def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_exec):
+    ex, hal, _ = sim_exec
+    sent_after = _press_estop_mid_motion(ex, hal)
     result = ex.run()
     assert result.status is TaskStatus.ESTOPPED
     assert ex.sm.state is ExecState.ESTOPPED and hal.lifecycle is Lifecycle.ESTOPPED
@@ -331,20 +341,7 @@ def test_zenoh_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm
     try:
         time.sleep(0.5)
         ex = Executive(hal, scene, objects)
-        sent_after: list[bool] = []
-        calls = {"n": 0}
-        original = hal.write_setpoint
-
-        def counting(*a, **k):
-            res = original(*a, **k)
-            calls["n"] += 1
-            if ex.signals.estop.is_set():
-                sent_after.append(bool(res))
-            if calls["n"] == 150:  # mid-motion, 1.5 s into the first segment
-                threading.Thread(target=ex.estop).start()
-            return res
-
-        hal.write_setpoint = counting  # type: ignore[method-assign]
+        sent_after = _press_estop_mid_motion(ex, hal, in_thread=True)
         result = ex.run()
         assert result.status is TaskStatus.ESTOPPED, result.detail
         assert sent_after == [], "a setpoint went out after the e-stop was requested"

@@ -246,7 +246,7 @@ def test_perturbed_objects_in_sorting_hsr_are_recovered_within_5_mm_and_planned_
     # ... and the plan built from the perceived scene holds in the true world (replayed there)
     from rlgp_exec.perceive_plan import perceive_and_plan
 
-    r = perceive_and_plan(SCENES / "sorting_hsr.toml", "rlgp", seed=4, perturb_m=0.05)
+    (r,) = perceive_and_plan(SCENES / "sorting_hsr.toml", ("rlgp",), seed=4, perturb_m=0.05)
     assert r.plan.success, r.plan.reason
     assert r.in_truth is not None and r.in_truth.ok and r.ok, r.text()
 

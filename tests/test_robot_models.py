@@ -126,9 +126,8 @@ def test_self_collision_is_detected_when_the_arm_folds_into_the_body():
     client = p.connect(p.DIRECT)
     try:
         body = PyBulletRobot(robot, client)
-        q = robot.home(
-            joints={"arm_flex_joint": -2.6, "arm_lift_joint": 0.0, "wrist_flex_joint": 0.0, "arm_roll_joint": 0.0}
-        )
+        q = robot.home(joints={"arm_flex_joint": -2.6, "arm_lift_joint": 0.0, "wrist_flex_joint": 0.0,
+                               "arm_roll_joint": 0.0})
         body.set_q(q)
         tool_z = robot.fk(q, "hand_tool_frame")[2, 3]
         assert tool_z < 0.31  # the hand is down inside the base cylinder
@@ -167,13 +166,8 @@ def test_limits_carry_continuous_joints_and_base_speeds():
     assert list(hsr.limits.velocity[:3]) == [0.2, 0.2, 1.0]
     assert list(np.flatnonzero(hsr.limits.continuous)) == [2]
     cont = {pr2.limits.names[i] for i in np.flatnonzero(pr2.limits.continuous)}
-    assert cont == {
-        "base_yaw",
-        "r_forearm_roll_joint",
-        "r_wrist_roll_joint",
-        "l_forearm_roll_joint",
-        "l_wrist_roll_joint",
-    }
+    assert cont == {"base_yaw", "r_forearm_roll_joint", "r_wrist_roll_joint", "l_forearm_roll_joint",
+                    "l_wrist_roll_joint"}
     assert pr2.nq == 3 + 1 + 7 + 7 + 2 + 2
     assert len(pr2.group("right_arm")) == 7 and len(pr2.group("left_arm")) == 7
 

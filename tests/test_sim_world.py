@@ -92,10 +92,8 @@ def test_robot_camera_view_renders_the_scene():
 
 def test_show_writes_a_png_with_the_scene_colours(tmp_path):
     out = tmp_path / "scene.png"
-    assert (
-        main(["show", str(scene_path("table_clearing_hsr")), "--png", str(out), "--width", "480", "--height", "360"])
-        == 0
-    )
+    assert main(["show", str(scene_path("table_clearing_hsr")), "--png", str(out), "--width", "480",
+                 "--height", "360"]) == 0
     img = cv2.imread(str(out))
     assert img is not None and img.shape == (360, 480, 3)
     assert len(np.unique(img.reshape(-1, 3) // 32, axis=0)) > 8  # many distinct colours, not a flat image

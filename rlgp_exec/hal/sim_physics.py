@@ -82,21 +82,10 @@ class SimRobot:
             for name, cab in self.world.cabinets.items():
                 self.cabinets[name] = (cab.body, cab.drawer_joint)
                 # a free drawer with some friction, inside its travel: the hand on the knob moves it
-                p.changeDynamics(
-                    cab.body,
-                    cab.drawer_joint,
-                    jointLowerLimit=0.0,
-                    jointUpperLimit=cab.travel,
-                    physicsClientId=self.client,
-                )
-                p.setJointMotorControl2(
-                    cab.body,
-                    cab.drawer_joint,
-                    p.VELOCITY_CONTROL,
-                    targetVelocity=0.0,
-                    force=_DRAWER_FRICTION_N,
-                    physicsClientId=self.client,
-                )
+                p.changeDynamics(cab.body, cab.drawer_joint, jointLowerLimit=0.0, jointUpperLimit=cab.travel,
+                                 physicsClientId=self.client)
+                p.setJointMotorControl2(cab.body, cab.drawer_joint, p.VELOCITY_CONTROL, targetVelocity=0.0,
+                                        force=_DRAWER_FRICTION_N, physicsClientId=self.client)
         else:
             self.client = p.connect(p.DIRECT)
             p.setGravity(0, 0, -9.81, physicsClientId=self.client)
@@ -149,13 +138,16 @@ class SimRobot:
         """Position/velocity targets for some joints; False (ignored) while e-stopped."""
         if self.estopped:
             return False
-        q_now = self._physical_q()
         continuous = self.model.limits.continuous
+        q_now = None
         for n, q, dq in zip(sp.names, sp.q, sp.dq, strict=True):
             i = self.model.index(n)
-            # a continuous joint's target comes wrapped to [-pi, pi): the motor goes the short way from
-            # where the joint physically is (3.11 after -3.08 is 0.05 rad on, not a turn back)
-            self._q_target[i] = q_now[i] + wrap_angle(q - q_now[i]) if continuous[i] else q
+            if continuous[i]:
+                # its target comes wrapped to [-pi, pi): the motor goes the short way from where the
+                # joint physically is (3.11 after -3.08 is 0.05 rad on, not a turn back)
+                q_now = self._physical_q() if q_now is None else q_now
+                q = q_now[i] + wrap_angle(q - q_now[i])
+            self._q_target[i] = q
             self._dq_target[i] = dq
         return True
 

@@ -97,13 +97,8 @@ def load_robot_config(name: str) -> RobotConfig:
     groups = {k: tuple(v) for k, v in _get(raw, "groups", where).items()}
     manips = tuple(
         Manipulator(
-            name=m["name"],
-            group=m["group"],
-            gripper=m["gripper"],
-            tool_frame=m["tool_frame"],
-            palm_frame=m["palm_frame"],
-            open=float(m["open"]),
-            closed=float(m["closed"]),
+            name=m["name"], group=m["group"], gripper=m["gripper"], tool_frame=m["tool_frame"],
+            palm_frame=m["palm_frame"], open=float(m["open"]), closed=float(m["closed"]),
             links=tuple(m.get("links", ())),
             approach=tuple(float(v) for v in m.get("approach", (0.0, 0.0, 1.0))),  # type: ignore[arg-type]
             closing=tuple(float(v) for v in m.get("closing", (0.0, 1.0, 0.0))),  # type: ignore[arg-type]
