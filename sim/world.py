@@ -246,6 +246,8 @@ def build_world(scene: Scene, client: int | None = None, *, tags: bool = True) -
         for fx in scene.fixtures:
             if fx.kind == "drawer_cabinet":
                 world.cabinets[fx.name] = _cabinet_body(cid, fx)
+                if scene.start.opening(fx.name) > 0.0:  # a drawer already out (a replan mid-task)
+                    world.set_drawer_opening(fx.name, scene.start.opening(fx.name))
             else:
                 world.fixtures[fx.name] = _static_body(cid, fixture_boxes(fx))
         for rg in scene.regions:

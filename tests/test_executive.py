@@ -216,6 +216,36 @@ def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_e
     assert ex.sm.state is ExecState.IDLE and hal.lifecycle is Lifecycle.INACTIVE
 
 
+def test_a_task_cancelled_mid_carry_is_finished_from_the_hand(sim_exec):
+    """Pre-empted while carrying the block: the next task plans from the object in the hand (no new
+    pick), and the goal holds in the physics."""
+    ex, hal, rec = sim_exec
+    carrying = threading.Event()
+    ex.actor.on_phase = lambda k, n: carrying.set() if k == 2 else None  # after the pick and its lift
+    original, sent = hal.write_setpoint, {"n": 0}
+
+    def counting(*a, **k):
+        if carrying.is_set():
+            sent["n"] += 1
+            if sent["n"] == 60:  # 0.6 s into the carry
+                ex.cancel()
+        return original(*a, **k)
+
+    hal.write_setpoint = counting  # type: ignore[method-assign]
+    first = ex.run()
+    assert first.status is TaskStatus.CANCELLED and ex.held == "block", first.detail
+    assert hal.sim.object_pose("block")[2, 3] > 0.49 + 0.03 and ex.sm.state is ExecState.IDLE  # lifted, at rest
+    ex.actor.on_phase = None
+    second = ex.run()
+    assert second.status is TaskStatus.SUCCEEDED and second.verified, second.detail
+    assert second.actions == ("(place block tray)",) and ex.held is None
+    T, tray = hal.sim.object_pose("block"), ex.scene.regions[0]
+    assert abs(T[1, 3] - tray.offset[1]) < tray.size[1] / 2 and abs(T[0, 3] - 0.75) < tray.size[0] / 2
+    rec.close()
+    report = replay(rec.path)  # both tasks, the block in the hand between them
+    assert report.collisions == () and report.results[-1].startswith("succeeded")
+
+
 @pytest.mark.parametrize(
     "goal, match",
     [

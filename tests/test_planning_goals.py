@@ -81,3 +81,57 @@ def test_a_goal_that_already_holds_is_an_empty_valid_plan(tmp_path):
     plan = plan_scene(load_scene(path))
     assert plan.success and plan.actions == () and plan.reason == "the goal already holds"
     assert plan.validation is not None and plan.validation.goal_met
+
+
+# ------------------------------------------------------------------ a start state mid-task (replans)
+def _held_after_first_pick(scene):
+    """The sensed world after a full plan's first pick and its vertical leave: (robot state, poses, held)."""
+    import numpy as np
+
+    from rlgp_exec.hal.types import RobotState
+    from rlgp_exec.robot import load_robot
+
+    full = plan_scene(scene)
+    assert full.success, full.reason
+    model = load_robot(scene.robot.name)
+    k = next(i for i, ph in enumerate(full.phases) if ph.grasp)
+    obj, q_grasp, q_up = full.phases[k].grasp, full.phases[k].path[-1], full.phases[k + 1].path[-1]
+    tool = model.manipulator().tool_frame
+    T_tool_obj = np.linalg.inv(model.fk(q_grasp, tool)) @ scene.object(obj).T
+    names = [n for n in model.joint_names if n not in ("base_x", "base_y", "base_yaw")]
+    state = RobotState(0.0, names, [q_up[model.index(n)] for n in names], np.zeros(len(names)), base=tuple(q_up[:3]))
+    poses = {o.name: o.T for o in scene.objects} | {obj: model.fk(q_up, tool) @ T_tool_obj}
+    return model, state, poses, obj
+
+
+def test_a_plan_starts_with_the_object_in_the_hand_and_sets_it_down_first():
+    from rlgp_exec.executive.world import update_scene
+    from rlgp_exec.planning.registry import plan as run_planner
+    from rlgp_exec.planning.symbolic.problem import problem_from_scene
+
+    scene = load_scene(SORTING)
+    model, state, poses, obj = _held_after_first_pick(scene)
+    start = update_scene(scene, model, state, poses, held=obj, openings={})
+    assert start.start.held == obj and start.object(obj).support == "<hand>"
+    init = problem_from_scene(start, manipulators=["arm"]).init
+    assert ("holding", "arm", obj) in init and ("hand-empty", "arm") not in init
+    assert not any(a[0] == "on" and a[1] == obj for a in init)
+    plan = plan_scene(start)
+    assert plan.success, plan.reason
+    assert plan.actions[0].startswith(f"(place {obj} ") and f"(pick {obj})" not in plan.actions
+    assert plan.phases[0].held == obj and plan.validation is not None and plan.validation.goal_met
+    # GNPP's model starts from empty hands: it says so instead of planning a pick of what is held
+    refused = run_planner(start, "gnpp")
+    assert not refused.success and refused.reason.startswith("unsupported start: holding")
+
+
+def test_a_plan_starts_with_a_drawer_out_and_closes_it():
+    from rlgp_exec.scene import StartState
+
+    scene = load_scene(ROOT.parent / "sim" / "scenes" / "table_clearing_hsr.toml")
+    goal = Goal((Literal("closed", ("cabinet",)),))
+    assert plan_scene(replace(scene, goal=goal)).actions == ()  # closed in the file: nothing to do
+    plan = plan_scene(replace(scene, goal=goal, start=StartState(openings=(("cabinet", 0.3),))))
+    assert plan.success, plan.reason
+    assert plan.actions == ("(take_knob cabinet)", "(close_drawer cabinet)")
+    assert plan.validation is not None and plan.validation.final_openings["cabinet"] < 0.01

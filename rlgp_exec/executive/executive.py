@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError, SceneError
-from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals
+from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals, gripper_action
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.states import ExecState, StateMachine
@@ -38,7 +38,6 @@ __all__ = ["Executive", "TaskResult", "TaskStatus"]
 log = logging.getLogger(__name__)
 S = ExecState
 PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before giving up
-DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
 
 
 class TaskStatus(enum.Enum):
@@ -117,7 +116,9 @@ class Executive:
         if recorder is not None:
             self.sm.listeners.append(lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall))
         self.actor = Actor(hal, self.signals, recorder, period, self.tol)
-        self.held: str | None = None
+        self.held: str | None = None  # the object in the hand
+        self.T_tool_obj: FloatArray | None = None  # how it sits in the hand, as grasped (4, 4)
+        self.knob: str | None = None  # the cabinet whose knob the hand holds
         self.openings: dict[str, float] = {}  # [m] sensed drawer openings
         self.last_plan: Plan | None = None
 
@@ -171,7 +172,9 @@ class Executive:
         poses = self.objects.poses()
         self._record_detections(poses)
         self.openings = drawer_openings(self.scene, poses)
-        self.scene = update_scene(self.scene, self.model, st, poses, self.held, self.openings)
+        if not self.objects.senses and self.held is not None:
+            poses.pop(self.held, None)  # assumed poses know nothing of the grasp: it is as executed
+        self.scene = update_scene(self.scene, self.model, st, poses, self.held, self.openings, self.T_tool_obj)
         if self.recorder is not None:
             self.recorder.write("/scene", scene_to_dict(self.scene))
         return self.scene
@@ -192,7 +195,10 @@ class Executive:
     def _unmet(self, goal: Goal) -> list[str]:
         poses = {o.name: o.T for o in self.scene.objects}
         return [
-            why for lit in goal.literals for ok, why in [goal_holds(self.scene, lit, poses, self.openings)] if not ok
+            f"{lit}: {self.held} is in the hand" if self.held in lit.args else why
+            for lit in goal.literals
+            for ok, why in [goal_holds(self.scene, lit, poses, self.openings)]
+            if not ok or self.held in lit.args
         ]
 
     def _time(self, plan: Plan) -> list[Trajectory | None]:
@@ -295,11 +301,8 @@ class Executive:
                     if self.objects.senses:
                         return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
                     return result(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)")
-                if self.held is not None:
-                    raise _FaultError(f"holding {self.held!r}: this build replans only with an empty hand")
-                open_now = {c: round(o, 3) for c, o in self.openings.items() if o > DRAWER_CLOSED_M}
-                if open_now and attempt > 0:
-                    raise _FailedError(f"drawers open {open_now} [m]: the planners start from closed drawers")
+                if self.knob is not None:  # stopped while driving a drawer
+                    raise _FailedError(f"the hand holds the knob of {self.knob!r}: the planners start free of knobs")
                 self.sm.to(S.PLANNING, f"attempt {attempt + 1}")
                 scene = replace(self.scene, goal=goal)
                 from rlgp_exec.planning.registry import plan as run_planner
@@ -333,7 +336,7 @@ class Executive:
                 out = self._act(plan, trajectories, scene)
                 stats["execution_time_s"] += out[1]
                 outcome = out[0]
-                self.held = outcome.held
+                self._hand_after(plan, outcome, scene)
                 if outcome.status is ActStatus.ESTOPPED:
                     self._latch_estop("e-stop during motion")
                     return result(TaskStatus.ESTOPPED, f"e-stop during phase {outcome.phases_done}")
@@ -382,6 +385,22 @@ class Executive:
         c0 = self.actor.cycles
         out = self.actor.run_phases(list(plan.phases), trajectories, self.held, self._world_check(scene))
         return out, (self.actor.cycles - c0) * self.actor.period
+
+    def _hand_after(self, plan: Plan, outcome: ActOutcome, scene: Scene) -> None:
+        """What the hand holds after (part of) a plan ran: an object, and how it sits in the hand (the grasp
+        as planned, T_tool_obj at its grasp keyframe, for when the object is not sensed), or a knob."""
+        if outcome.held is not None and outcome.held != self.held:
+            k = max(i for i, ph in enumerate(plan.phases[: outcome.phases_done + 1]) if ph.grasp == outcome.held)
+            tool = self.model.manipulator().tool_frame
+            T_world_tool = self.model.fk(plan.phases[k].path[-1], tool)
+            self.T_tool_obj = np.linalg.inv(T_world_tool) @ scene.object(outcome.held).T
+        elif outcome.held is None:
+            self.T_tool_obj = None
+        self.held = outcome.held
+        for k in range(outcome.phases_done):  # the gripper actions that ran
+            a = gripper_action(list(plan.phases), k)
+            if a is not None and a.knob:
+                self.knob = a.target if a.grasp else None
 
     def _fault(self, why: str) -> None:
         log.error("executive fault: %s", why)

@@ -27,11 +27,12 @@ from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.hal.ros_codec import parse_transforms
 from rlgp_exec.hal.types import RobotState
 from rlgp_exec.robot.model import FloatArray, RobotModel
-from rlgp_exec.scene import Scene
+from rlgp_exec.scene import Scene, StartState
 from rlgp_exec.scene.geometry import support_surfaces
 from rlgp_exec.scene.validate import find_support
 
 __all__ = [
+    "DRAWER_CLOSED_M",
     "DRAWER_SUFFIX",
     "MOCAP_KEY",
     "ObjectSource",
@@ -47,6 +48,8 @@ log = logging.getLogger(__name__)
 MOCAP_KEY = "rlgp/mocap/objects"  # tf2_msgs/msg/TFMessage, world frame "map"
 DRAWER_SUFFIX = ".drawer"  # mocap frame of a cabinet's drawer: "<cabinet>.drawer"
 SNAP_Z = 0.015  # [m] a sensed object this close above/below a support surface rests on it
+DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
+HELD_MAX_M = 0.15  # [m] a held object sensed farther than this from the tool frame is not in the hand
 
 
 class ObjectSource(abc.ABC):
@@ -154,28 +157,28 @@ def update_scene(
     poses: dict[str, FloatArray],
     held: str | None = None,
     openings: dict[str, float] | None = None,
+    T_tool_obj: FloatArray | None = None,
 ) -> Scene:
-    """``scene`` with the robot's base and manipulator joints from ``state`` and the objects at ``poses``
-    (upright, resting on the surface under them; a drawer's floor where ``openings`` [m] has it).
-    Raises SceneError naming an object that is not resting on anything (it fell, or is in the hand:
-    ``held``)."""
+    """``scene`` with the robot's base and manipulator joints from ``state``, the objects at ``poses``
+    (upright, resting on the surface under them; a drawer's floor where ``openings`` [m] has it) and its
+    start state (``Scene.start``): the drawers out by more than DRAWER_CLOSED_M, and the object ``held``
+    in the hand, rigidly at T_tool_obj: from its sensed pose and the measured arm when it is sensed,
+    else ``T_tool_obj`` (the grasp as executed). Raises SceneError naming an object that is not resting
+    on anything (it fell), or a held object whose grasp is unknown."""
     objects = []
     for o in scene.objects:
         T = poses.get(o.name)
         if T is None or o.name == held:
             objects.append(o)
             continue
-        x, y, z = (float(v) for v in T[:3, 3])
-        yaw = math.atan2(T[1, 0], T[0, 0])
+        x, y, z, yaw = _xyz_yaw(T)
         objects.append(replace(o, pose=(x, y, z, yaw)))
     s = replace(scene, objects=tuple(objects))
     s = replace(
         s,
         objects=tuple(
-            replace(
-                o,
-                pose=(o.pose[0], o.pose[1], _snap(s, o.name, *o.pose[:3], o.size[2], openings), o.pose[3]),
-            )
+            o if o.name == held else
+            replace(o, pose=(o.pose[0], o.pose[1], _snap(s, o.name, *o.pose[:3], o.size[2], openings), o.pose[3]))
             for o in s.objects
         ),
     )
@@ -193,4 +196,23 @@ def update_scene(
     def fail(where: str, msg: str) -> SceneError:
         return SceneError(f"{scene.name} (sensed)", where, msg)
 
-    return find_support(s, fail, openings)
+    out = {c: round(float(v), 4) for c, v in (openings or {}).items() if v > DRAWER_CLOSED_M}
+    start = StartState(openings=tuple(sorted(out.items())))
+    if held is not None:
+        T_world_tool = model.fk(model.home(s.robot.base, s.robot.joints), model.manipulator().tool_frame)
+        if held in poses:
+            T_tool_obj = np.linalg.inv(T_world_tool) @ poses[held]
+            away = float(np.linalg.norm(T_tool_obj[:3, 3]))
+            if away > HELD_MAX_M:
+                raise fail(f"[[object]] '{held}'", f"held, but sensed {away:.2f} m from the hand "
+                                                   f"(> {HELD_MAX_M} m): it slipped out")
+        if T_tool_obj is None:
+            raise fail(f"[[object]] '{held}'", "held, but neither sensed nor grasped by this executive")
+        x, y, z, yaw = _xyz_yaw(T_world_tool @ T_tool_obj)
+        s = s.with_object_poses({held: (x, y, z, yaw)})
+        start = StartState.holding(held, T_tool_obj, openings=out)
+    return find_support(replace(s, start=start), fail, openings)
+
+
+def _xyz_yaw(T: FloatArray) -> tuple[float, float, float, float]:
+    return float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), math.atan2(T[1, 0], T[0, 0])

@@ -92,7 +92,7 @@ def rg_cost(geo: SequenceGeometry):
 
     def cost(prefix: Sequence[GroundAction], action: GroundAction) -> float:
         where = dict(start)
-        openings = {c: 0.0 for c in geo.drawers}
+        openings = {c: geo.scene.start.opening(c) for c in geo.drawers}
         here = geo.hand_start
         for a in prefix:
             if a.name not in GEOMETRIC_ACTIONS:
@@ -132,7 +132,9 @@ def plan_scene(
         dt = time.perf_counter() - t0
         return Plan(False, planner, (), np.zeros((0, 0)), (), dt, 0, 0, None, f"invalid goal: {e}")
     poses = {o.name: o.T for o in scene.objects}
-    if all(goal_holds(scene, lit, poses)[0] for lit in scene.goal.literals):  # nothing to do? (then replayed)
+    openings = dict(scene.start.openings)
+    held = scene.start.held  # an object in the hand is not where any goal wants it
+    if all(held not in lit.args and goal_holds(scene, lit, poses, openings)[0] for lit in scene.goal.literals):
         already = validate_plan(scene, [])
         if already.ok:
             dt = time.perf_counter() - t0

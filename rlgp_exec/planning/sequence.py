@@ -255,8 +255,10 @@ class SequenceGeometry:
         if not kf.ok:
             return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
         phases: list[Phase] = []
-        q_prev, held, T_tool_obj = self.q0, None, None
-        openings = {c: 0.0 for c in self.drawers}
+        start = self.scene.start
+        q_prev, held = self.q0, start.held
+        T_tool_obj = None if held is None else start.T_tool_obj
+        openings = {c: start.opening(c) for c in self.drawers}
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
             if a.name in ("open_drawer", "close_drawer"):  # the hand on the knob drives the drawer
                 phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True))
@@ -266,7 +268,7 @@ class SequenceGeometry:
                 q_prev = q_leave
                 continue
             self.rg.drawers(openings)
-            before = kf.object_poses[k - 1] if k else {o.name: o.T for o in self.scene.objects}
+            before = kf.object_poses[k - 1] if k else {o.name: o.T for o in self.scene.objects}  # held: skipped
             self.checker.set_objects(  # the objects where they stand are obstacles for the guided path
                 [replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held]
             )

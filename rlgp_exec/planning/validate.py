@@ -1,7 +1,8 @@
 """Every plan is replayed before anyone calls it a success: PyBullet, fine resolution, with the objects.
 
 The robot follows each phase's joint path at ``step`` [rad or m] per joint; an object picked at the end
-of a phase rides with the hand (its pose relative to the tool frozen at the grasp) until it is placed.
+of a phase (or in the hand from the start, ``scene.start``) rides with the hand (its pose relative to
+the tool frozen at the grasp) until it is placed.
 Collisions are checked for the robot (against the world and itself; the held object is the hand's)
 and for the held object (against everything but the robot). The goal literals are then checked in the
 final simulated state; a literal this checker cannot evaluate counts as unmet, never as met.
@@ -104,6 +105,9 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     # it was grasped [m] (two arms may hold one object each)
     held: dict[str, tuple[str, FloatArray, float]] = {}
     try:
+        if scene.start.held is not None:  # in the hand from the start (a replan mid-task)
+            held[scene.start.held] = (model.manipulator(scene.start.arm).tool_frame, scene.start.T_tool_obj, 0.0)
+            robot.ignore_body(world.objects[scene.start.held])
         for k, ph in enumerate(phases):
             tool = model.manipulator(ph.arm).tool_frame
             fingers = set(model.manipulator(ph.arm).links)

@@ -7,6 +7,7 @@ from rlgp_exec.scene.randomize import randomize, scene_hash
 from rlgp_exec.scene.serialize import scene_to_dict
 from rlgp_exec.scene.types import (
     COLORS,
+    IN_HAND,
     DrawerSpec,
     Fixture,
     Goal,
@@ -16,12 +17,14 @@ from rlgp_exec.scene.types import (
     RobotSpec,
     Scene,
     SceneObject,
+    StartState,
     TagSpec,
     pose_matrix,
 )
 
 __all__ = [
     "COLORS",
+    "IN_HAND",
     "PREDICATES",
     "Box",
     "CabinetGeometry",
@@ -34,6 +37,7 @@ __all__ = [
     "RobotSpec",
     "Scene",
     "SceneObject",
+    "StartState",
     "TagSpec",
     "cabinet_geometry",
     "fixture_boxes",

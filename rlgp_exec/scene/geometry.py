@@ -162,8 +162,10 @@ def support_surfaces(
     scene: Scene, exclude: str | None = None, openings: Mapping[str, float] | None = None
 ) -> list[Surface]:
     """Every surface an object may rest on: fixture tops, cabinet tops, drawer bottoms (pulled out by
-    ``openings`` [m], cabinet name -> opening; closed when absent), object tops."""
+    ``openings`` [m], cabinet name -> opening; None: as ``scene.start`` has them), the tops of the
+    objects not in the hand."""
     out: list[Surface] = []
+    openings = dict(scene.start.openings) if openings is None else openings
     for fx in scene.fixtures:
         if fx.kind == "drawer_cabinet":
             g = cabinet_geometry(fx)
@@ -171,12 +173,12 @@ def support_surfaces(
             out.append(Surface(fx.name, _local(top.T, (0, 0, top.size[2] / 2)), top.size[:2]))
             inner = g.inner_box
             T_in = g.T_world_drawer_closed @ inner.T
-            T_in[:3, 3] += (openings or {}).get(fx.name, 0.0) * np.asarray(g.axis_world, float)
+            T_in[:3, 3] += openings.get(fx.name, 0.0) * np.asarray(g.axis_world, float)
             out.append(Surface(f"{fx.name}.drawer", _local(T_in, (0, 0, -inner.size[2] / 2)), inner.size[:2]))
         else:
             out.append(Surface(fx.name, _local(fx.T, (0, 0, fx.size[2] / 2)), fx.size[:2]))
     for o in scene.objects:
-        if o.name != exclude:
+        if o.name != exclude and o.name != scene.start.held:
             out.append(Surface(o.name, _local(o.T, (0, 0, o.size[2] / 2)), o.size[:2]))
     return out
 

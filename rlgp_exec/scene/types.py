@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "COLORS",
+    "IN_HAND",
     "DrawerSpec",
     "Fixture",
     "Goal",
@@ -20,6 +21,7 @@ __all__ = [
     "RobotSpec",
     "Scene",
     "SceneObject",
+    "StartState",
     "TagSpec",
     "pose_matrix",
 ]
@@ -144,6 +146,49 @@ class Goal:
     literals: tuple[Literal, ...]
 
 
+#: ``SceneObject.support`` of the object a hand holds (``StartState.held``)
+IN_HAND = "<hand>"
+
+
+@dataclass(frozen=True)
+class StartState:
+    """The start state beyond the poses: an object in the hand and drawers pulled out. Scene files have
+    neither (hands empty, drawers closed); the executive sets them when it replans mid-task."""
+
+    held: str | None = None  # the object in the hand (its ``support`` is IN_HAND)
+    arm: str | None = None  # the manipulator holding it (None: the robot's first)
+    tool_obj: tuple[float, ...] = ()  # T_tool_obj (4, 4) row-major: the held object in the tool frame
+    openings: tuple[tuple[str, float], ...] = ()  # (cabinet, opening [m]) of the drawers not closed
+
+    def __post_init__(self) -> None:
+        if (self.held is None) != (len(self.tool_obj) == 0):
+            raise ValueError("StartState: held and tool_obj go together")
+        if self.held is not None and len(self.tool_obj) != 16:
+            raise ValueError(f"StartState: tool_obj needs 16 values (4 x 4 row-major), got {len(self.tool_obj)}")
+
+    @staticmethod
+    def holding(obj: str, T_tool_obj: FloatArray, arm: str | None = None,
+                openings: Mapping[str, float] | None = None) -> StartState:
+        return StartState(obj, arm, tuple(float(v) for v in np.asarray(T_tool_obj).reshape(-1)),
+                          tuple(sorted((openings or {}).items())))
+
+    @property
+    def T_tool_obj(self) -> FloatArray:
+        """(4, 4) the held object in the tool frame; raises if nothing is held."""
+        if self.held is None:
+            raise ValueError("StartState: nothing is held")
+        return np.asarray(self.tool_obj, float).reshape(4, 4)
+
+    def opening(self, cabinet: str) -> float:
+        """[m] how far the cabinet's drawer is out at the start (0: closed)."""
+        return dict(self.openings).get(cabinet, 0.0)
+
+    @property
+    def empty(self) -> bool:
+        """Hands empty and drawers closed: what every planner handles."""
+        return self.held is None and not any(o > 0.0 for _, o in self.openings)
+
+
 @dataclass(frozen=True)
 class Scene:
     name: str
@@ -153,6 +198,7 @@ class Scene:
     regions: tuple[Region, ...]
     goal: Goal
     source: str  # the file (or label) it was read from
+    start: StartState = StartState()  # hands empty, drawers closed (scene files); see StartState
 
     def fixture(self, name: str) -> Fixture:
         for f in self.fixtures:

@@ -9,7 +9,7 @@ import numpy as np
 
 from rlgp_exec.errors import SceneError
 from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_box, support_surfaces
-from rlgp_exec.scene.types import Scene, SceneObject
+from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject
 
 __all__ = ["SUPPORT_TOLERANCE", "find_support", "footprint_radius", "validate_geometry"]
 
@@ -25,9 +25,13 @@ def footprint_radius(obj: SceneObject) -> float:
 
 def find_support(scene: Scene, fail: Fail, openings: Mapping[str, float] | None = None) -> Scene:
     """Fill each object's ``support``: the highest surface under its centre that its bottom touches
-    (drawers pulled out by ``openings`` [m], cabinet name -> opening: a sensed world mid-task)."""
+    (drawers pulled out by ``openings`` [m], cabinet name -> opening: a sensed world mid-task). The
+    object in the hand (``scene.start.held``) rests on nothing: its support is IN_HAND."""
     objs = []
     for o in scene.objects:
+        if o.name == scene.start.held:
+            objs.append(replace(o, support=IN_HAND))
+            continue
         bottom = o.pose[2] - o.size[2] / 2
         xy = np.asarray(o.pose[:2])
         top = o.pose[2] + o.size[2] / 2

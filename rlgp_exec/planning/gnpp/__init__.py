@@ -4,6 +4,8 @@ the internal best-first search on the compiled task) and ``gnpp_trn_fd`` (logic 
 
 from __future__ import annotations
 
+import numpy as np
+
 from rlgp_exec.planning.gnpp.planner import VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
@@ -19,6 +21,10 @@ def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
     def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:
         from dataclasses import replace
 
+        if not scene.start.empty:  # its PNTC model starts from empty grippers and closed drawers
+            why = f"holding {scene.start.held!r}" if scene.start.held else f"drawers out {dict(scene.start.openings)}"
+            return Plan(False, name, (), np.zeros((0, 0)), (), 0.0, 0, 0, None,
+                        f"unsupported start: {why}; {name} plans from empty hands and closed drawers (use rlgp)")
         res = plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S, memory=memory)
         return replace(res.plan, planner=name)
 

@@ -254,14 +254,18 @@ def solve_keyframes(
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
     lift_name = model.joint_names[int(ik.idx[3])] if len(ik.idx) > 3 else ""
     poses: dict[str, FloatArray] = {name: o.T.copy() for name, o in objs.items()}
-    openings = {c: 0.0 for c in drawers}
+    openings = {c: scene.start.opening(c) for c in drawers}
+    openings0 = dict(openings)
     opening_at: list[dict[str, float]] = []  # the drawers' openings at each keyframe
     footprints_at: list[list[tuple[FloatArray, FloatArray]]] = []  # (T, size) the base must avoid, per keyframe
     moved: set[str] = set()
     set_down: dict[str, list[tuple[str, ca.SX, float]]] = {}  # target -> (object, its x y, radius [m])
-    held: str | None = None
+    held: str | None = scene.start.held  # the start's grasp: T_tool_obj is fixed, the kinematic switch
     knob: str | None = None
-    grasp: ca.SX | None = None
+    grasp: ca.SX | None = None if held is None else ca.DM(scene.start.T_tool_obj)
+    held_T0 = None if held is None else scene.start.T_tool_obj
+    if held is not None:
+        moved.add(held)  # rides in the hand: no obstacle where it stands
     targets: list[FloatArray | None] = []  # None: the keyframe follows from the previous one
     labels: list[str] = []  # one per constraint row, for the failure reason
     tilts: list[ca.SX] = []  # 1 + a_z of each grasp: a vertical hand carries objects most safely
@@ -418,7 +422,9 @@ def solve_keyframes(
         if viol <= FEAS_TOL and in_collision is not None:
             zk = np.asarray(ca.reshape(res["x"], n, K)).T
             qk = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zk])
-            after = object_poses_after(actions, qk, poses, opening_at, drawers, model, ik.tool, sizes)
+            after = object_poses_after(
+                actions, qk, poses, opening_at, drawers, model, ik.tool, sizes, held_T0, openings0
+            )
             obstacles = [_obstacles(actions[k], after[k - 1] if k else poses, after[k]) for k in range(K)]
             bad = [k for k in range(K) if in_collision(qk[k], opening_at[k], actions[k], obstacles[k])]
             if bad:  # feasible for the NLP, not for the robot: restart the rejected keyframes
@@ -437,7 +443,9 @@ def solve_keyframes(
     # IPOPT may end a hair outside a bound (its bound relaxation, ~1e-8): keyframes are kept inside
     keyframes = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zs])
     # object poses after each action, evaluated numerically
-    out_poses = object_poses_after(actions, keyframes, poses, opening_at, drawers, model, ik.tool, sizes)
+    out_poses = object_poses_after(
+        actions, keyframes, poses, opening_at, drawers, model, ik.tool, sizes, held_T0, openings0
+    )
     ok = viol <= FEAS_TOL
     return KeyframeResult(
         ok,

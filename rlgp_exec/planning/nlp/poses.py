@@ -29,13 +29,16 @@ def object_poses_after(
     model: RobotModel,
     tool: str,
     sizes: dict[str, tuple[float, float, float]] | None = None,
+    held_T: FloatArray | None = None,
+    openings0: dict[str, float] | None = None,
 ) -> list[dict[str, FloatArray]]:
     """T_world_obj of every object after each action. ``openings[k]``: the drawers' openings at keyframe
-    k (after an open/close, the new opening); ``sizes``: full extents of the objects (for drops)."""
+    k (after an open/close, the new opening); ``sizes``: full extents of the objects (for drops);
+    ``held_T``: T_tool_obj of an object in the hand at the start; ``openings0``: the drawers' openings
+    at the start [m] (closed if absent)."""
     out: list[dict[str, FloatArray]] = []
     cur = {k: v.copy() for k, v in start.items()}
-    held_T: FloatArray | None = None
-    before = {c: 0.0 for c in drawers}
+    before = {c: (openings0 or {}).get(c, 0.0) for c in drawers}
     for k, a in enumerate(actions):
         T_tool = model.fk(keyframes[k], tool)
         if a.name == "pick":

@@ -2,11 +2,13 @@
 
 Typing (see ``domains/mobile_manipulation.pddl``): the robot's manipulators (PR2: right_arm,
 left_arm; HSR: arm) are ``manipulator``; static fixtures are ``surface`` (their top holds any number
-of objects); drawer cabinets are ``cabinet`` (a surface with a drawer, closed at the start); a
+of objects); drawer cabinets are ``cabinet`` (a surface with a drawer, closed at the start unless ``scene.start``
+has it out); a
 region is a ``slot`` if it has room for a single object (the footprint of the largest movable
 object fits at most once, e.g. a Hanoi peg) and a ``surface`` otherwise; movable objects are
 ``movable``. An object resting on a fixture whose centre lies inside a region of that fixture is
-``on`` the region; one resting in ``<cabinet>.drawer`` is ``in`` the cabinet.
+``on`` the region; one resting in ``<cabinet>.drawer`` is ``in`` the cabinet; the one in the hand (``scene.start.held``)
+is held by it.
 """
 
 from __future__ import annotations
@@ -155,9 +157,16 @@ def problem_from_scene(
     for o in scene.objects:
         declare(o.name, "movable", "object")
 
-    init: set[Atom] = {("hand-empty", m) for m in hands}
+    held, holder = scene.start.held, scene.start.arm or hands[0]
+    if held is not None and holder not in hands:
+        raise SymbolicError(f"scene {scene.name}: {holder} holds {held!r}, but this problem plans for {hands} only")
+    init: set[Atom] = {("hand-empty", m) for m in hands if not (held is not None and m == holder)}
     covered: set[str] = set()
     for o in scene.objects:
+        if o.name == held:
+            init.add(("holding", holder, o.name))
+            covered.add(o.name)  # a held object is not clear (pick took that away; place gives it back)
+            continue
         sup = o.support
         if sup.endswith(".drawer"):
             init.add(("in", o.name, sup.removesuffix(".drawer")))
@@ -173,7 +182,7 @@ def problem_from_scene(
         if t in ("movable", "slot") and n not in covered:
             init.add(("clear", n))
     for c in (n for n, t in types.items() if t == "cabinet"):
-        init |= {("closed", c), ("knob-free", c)}
+        init |= {("open" if scene.start.opening(c) > 0.0 else "closed", c), ("knob-free", c)}
     slots = {r.name: r for r in scene.regions if types[r.name] == "slot"}
     for o in scene.objects:
         fo = footprint(o)
