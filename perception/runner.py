@@ -33,15 +33,28 @@ log = logging.getLogger(__name__)
 
 def perturbed_poses(scene: Scene, magnitude_m: float, seed: int) -> dict[str, np.ndarray]:
     """T_world_object of each tagged object moved by up to ``magnitude_m`` in x/y and 0.3 rad in yaw
-    away from the scene file (the file is then wrong, as it is on a real robot)."""
+    away from the scene file (the file is then wrong, as it is on a real robot). An object with a
+    ``random`` table stays inside its x/y ranges (in its support's frame): those ranges are where the
+    scene says the object can be (e.g. tower_pr2's back row, kept within one arm's reach)."""
+    from rlgp_exec.scene.geometry import support_surfaces
+
     rng = np.random.default_rng(seed)
+    surfaces = {s.name: s for s in support_surfaces(scene)}
     truth = {}
     for obj in scene.objects:
         if obj.tag is None:
             continue
         x, y, z, yaw = obj.pose
         d = rng.uniform(-1.0, 1.0, 2) * magnitude_m
-        truth[obj.name] = pose_matrix((x + d[0], y + d[1], z, yaw + rng.uniform(-0.3, 0.3)))
+        T = pose_matrix((x + d[0], y + d[1], z, yaw + rng.uniform(-0.3, 0.3)))
+        surf = surfaces.get(obj.support)
+        if obj.random is not None and surf is not None:
+            T_local = np.linalg.inv(surf.T) @ T
+            for k, rng_k in enumerate((obj.random.x, obj.random.y)):
+                if rng_k is not None:
+                    T_local[k, 3] = float(np.clip(T_local[k, 3], *rng_k))
+            T = surf.T @ T_local
+        truth[obj.name] = T
     return truth
 
 

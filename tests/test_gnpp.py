@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rlgp_exec.planning.gnpp import GnppStatus, Logic, plan_gnpp
@@ -213,3 +214,52 @@ def test_variants_registered():
 
     names = set(planner_names())
     assert {"gnpp", "gnpp_t", "gnpp_tr", "gnpp_trn", "gnpp_trng", "oneway", "gnpp_trn_fd"} <= names
+
+
+def _obstacles(keep: list[str]):
+    sc = load_scene(SCENES / "obstacles_tower_pr2.toml")
+    return dataclasses.replace(sc, objects=tuple(o for o in sc.objects if o.name in keep))
+
+
+def test_a_conflict_only_a_bad_start_makes_is_refuted_and_a_real_one_is_not(pr2):
+    """The NLP solver is local: from a bad start it can call a free layout infeasible (here a solver that
+    is stuck at its start's object poses stands for that). ``refute`` restarts with the objects
+    perturbed too, not only the arms, and finds a point that satisfies every factor; a real conflict
+    (b1 into the goal region while both obstacles stay there) survives it."""
+    from rlgp_exec.planning.gnpp.pntc import Factor, Var
+    from rlgp_exec.planning.gnpp.solver import Feasibility, SolveResult
+
+    lib = FactorLib(pr2, _obstacles(["o1", "o2", "b1", "b4"]))
+    x = {o: Var("x", o, 4) for o in ("o1", "o2", "b1", "b4")}
+    o1, o2 = lib.start_pose("o1"), lib.start_pose("o2")
+    guess = {x["o1"]: o1, x["o2"]: o2, x["b1"]: o1 + np.array([0.01, 0, 0, 0]), x["b4"]: o2 + np.array([0.01, 0, 0, 0])}
+
+    class StuckAtTheGuess(GraphSolver):
+        def solve(self, factors, start):
+            if all(np.array_equal(start[v], guess[v]) for v in variables(factors) if v in guess):
+                return SolveResult(Feasibility.INFEASIBLE, dict(start), (1.0,) * len(factors), 0.0)
+            return super().solve(factors, start)
+
+    def col(a: str, b: str) -> Factor:
+        return Factor(("ColOO", a, b), (x[a], x[b]), ())
+
+    refs = [Factor(("Ref", o), (x[o],), ()) for o in ("o1", "o2")]
+    free = [*refs, col("b1", "b4"), col("b1", "o1"), col("b1", "o2"), col("b4", "o2")]
+    solver = StuckAtTheGuess(lib)
+    assert not solver.solve(free, guess).feasible
+    point = solver.refute(free, guess)
+    assert point is not None
+    res = GraphSolver(lib).solve(free, point)
+    assert res.feasible and max(res.violations) <= 1e-4
+
+    real = [*refs, Factor(("Place", "b1", "goal_region"), (x["b1"],), ()), col("b1", "o1"), col("b1", "o2")]
+    assert solver.refute(real, guess, tries=8) is None
+
+
+def test_obstacle_tower_is_planned_not_declared_infeasible():
+    """Two obstacles fill the goal region; a false conflict once "proved" this task infeasible."""
+    res = plan_gnpp(load_scene(SCENES / "obstacles_tower_pr2.toml"), "gnpp_trn", timeout_s=120.0)
+    assert res.status is GnppStatus.SOLVED, res.plan.reason
+    assert res.plan.validation is not None and res.plan.validation.ok
+    moved = {a.split()[2] for a in res.plan.actions if a.startswith("(pick")}
+    assert moved & {"o1", "o2"}, res.plan.actions  # an obstacle was cleared out of the region

@@ -25,6 +25,7 @@ __all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_confl
 
 log = logging.getLogger(__name__)
 FILTER_MAX = 12  # the deletion filter (one solve per factor) runs on conflicts up to this size
+FILTER_MAX_NO_ROBOT = 40  # ... or this size when no factor has an arm variable (object poses only)
 
 
 @dataclass(frozen=True)
@@ -101,12 +102,20 @@ def _time_search(check: Checker, g: list[Factor]) -> list[Factor]:
 
 
 def _convergence(check: Checker, g: list[Factor]) -> list[Factor]:
-    """The factors violated at the convergence point, if they alone are infeasible (Sec. VI-C)."""
+    """The factors violated at the convergence point, if they alone are infeasible (Sec. VI-C), else
+    those with the factors over their variables only, if that is infeasible; else ``g``."""
     if check.feasible(g) or check.last is None:
         return g
     violated = [f for f, v in zip(g, check.last.violations, strict=True) if v > 1e-4]
-    if violated and len(violated) < len(g) and not check.feasible(violated):
-        return violated
+    if not violated:
+        return g
+    # with the factors that only constrain the violated ones' variables (e.g. the Ref pinning an
+    # obstacle a violated collision names): those alone are rarely infeasible without them
+    span = {v for f in violated for v in f.vars}
+    closed = [f for f in g if f in violated or set(f.vars) <= span]
+    for cand in (violated, closed):
+        if len(cand) < len(g) and not check.feasible(cand):
+            return cand
     return g
 
 
@@ -147,7 +156,8 @@ def find_conflict(
             sub = _time_search(check, comp) if opts.time_search else comp
             if opts.convergence:
                 sub = _convergence(check, sub)
-                if len(sub) <= FILTER_MAX:  # larger ones stay as found (small, not proven minimal)
+                # larger ones stay as found (small, not proven minimal); without arms the NLPs are tiny
+                if len(sub) <= (FILTER_MAX_NO_ROBOT if not any(f.robot for f in sub) else FILTER_MAX):
                     sub = _deletion_filter(check, sub)
             log.info("conflict (%s, %d factors): %s", rel, len(sub), "; ".join(map(str, sub)))
             return Conflict(tuple(sub), rel), {}

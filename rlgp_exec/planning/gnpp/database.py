@@ -68,6 +68,16 @@ class SubgraphDB:
     def add(self, factors: Sequence[Factor], feasible: bool) -> None:
         (self.feasible if feasible else self.infeasible).append(_entry(factors, self.context))
 
+    def correct(self, factors: Sequence[Factor]) -> int:
+        """``factors`` turned out feasible (another start of the local solver): record it, and drop the
+        infeasible entries it contradicts (those that are subgraphs of it). Returns how many."""
+        e = _entry(factors, self.context)
+        keep = [k for k in self.infeasible if not _contains(e, k)]
+        dropped = len(self.infeasible) - len(keep)
+        self.infeasible = keep
+        self.feasible.append(e)
+        return dropped
+
     def lookup(self, factors: Sequence[Factor]) -> bool | None:
         """True if known feasible, False if known infeasible, None if unknown."""
         q = _entry(factors, self.context)

@@ -86,6 +86,22 @@ def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatAr
     return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
+def _free_spot(
+    T_world_surface: FloatArray, half: FloatArray, size: Sequence[float], others: list[FloatArray], n: int = 7
+) -> FloatArray:
+    """The xy (2,) on an n x n grid over the surface (inset by the object's footprint, as ``Place``)
+    farthest from the other resting objects' centres (the surface's centre if none): objects placed
+    on one region must not start at the same point (a signed distance has no gradient there)."""
+    margin = max(size[0], size[1]) / 2
+    ax, ay = (max(float(h) - margin, 0.0) for h in half[:2])
+    grid = np.array([(x, y) for x in np.linspace(-ax, ax, n) for y in np.linspace(-ay, ay, n)])
+    pts = T_world_surface[:2, 3] + grid @ T_world_surface[:2, :2].T
+    if not others:
+        return T_world_surface[:2, 3].copy()
+    d = np.min(np.linalg.norm(pts[:, None, :] - np.asarray(others)[None, :, :], axis=2), axis=1)
+    return pts[int(np.argmax(d))].copy()
+
+
 def initial_guess(
     lib: FactorLib, ik: TopIK, states: Sequence[SymbolicState], variables: Sequence[Var]
 ) -> dict[Var, FloatArray]:
@@ -114,9 +130,10 @@ def initial_guess(
                     wp = world[p]
                     world[o] = np.array([wp[0], wp[1], wp[2] + (h + lib.objects[p].size[2]) / 2 + PLACE_LIFT, wp[3]])
                 else:
-                    T, _, z = lib.surface(p)
                     region = any(r.name == p for r in lib.scene.regions)
-                    xy = T[:2, 3] if region else world[o][:2]
+                    others = [world[b][:2] for b, pb in par.items() if b != o and pb not in arms]
+                    T, half, z = lib.surface(p)
+                    xy = _free_spot(T, half, lib.objects[o].size, others) if region else world[o][:2]
                     world[o] = np.array([xy[0], xy[1], z + h / 2 + PLACE_LIFT, world[o][3]])
                 arm = prev.get(o)
                 if arm in arms:

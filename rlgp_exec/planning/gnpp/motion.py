@@ -2,10 +2,9 @@
 
 The keyframes are the solved arm configurations at each action. Between them each action is one
 phase of straight joint-space segments: every arm left at a keyframe first lifts its hand
-``LIFT`` straight up (IK, posture kept); an arm that let go of its object then returns to its start
-posture; the acting arm moves to ``LIFT`` above its keyframe, then down onto it (grasp or
-release).
-An arm holding an object while the other one works keeps it lifted where it is. This is not the
+``LIFT`` straight up (IK, posture kept); every other arm then returns to its start posture (one that
+holds an object takes it along); the acting arm moves to ``LIFT`` above its keyframe, then down onto
+it (grasp or release). This is not the
 paper's 20-waypoint trajectory optimisation: the replay (``validate_plan``) decides.
 """
 
@@ -58,9 +57,11 @@ def phases_of(
                 cur[arm] = up
                 path.append(full())
                 low[arm] = False
-                if active is not None and arm != active and arm not in holding:
-                    cur[arm] = lib.home_q(arm)
-                    path.append(full())
+            if active is not None and arm != active and not np.array_equal(cur[arm], lib.home_q(arm)):
+                # out of the active arm's way, with what it holds: the graph-NLP kept the arms apart
+                # at the keyframes only, not along the approach
+                cur[arm] = lib.home_q(arm)
+                path.append(full())
         return None
 
     for k, a in enumerate(actions):

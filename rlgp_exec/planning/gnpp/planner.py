@@ -131,10 +131,7 @@ def plan_gnpp(
     objects = [o.name for o in scene.objects]
     forbidden: list[ForbiddenSequence] = []
     found: list[Conflict] = []
-    guesses: list[dict] = []  # the start each conflict was found from
-    conflict_seqs: list[ForbiddenSequence] = []
-    verified = False
-    n0, logic_s, blocked_plans = None, 0.0, 0
+    n0, logic_s, blocked_plans, refuted = None, 0.0, 0, 0
     reasons: list[str] = []
 
     def result(status: GnppStatus, reason: str, plan: Plan | None = None, it: int = 0) -> GnppResult:
@@ -145,6 +142,7 @@ def plan_gnpp(
             "db_hits": db.hits if db is not None else 0,
             "conflicts": len(found),
             "blocked_plans": blocked_plans,
+            "refuted": refuted,
             "iterations": it,
             "logic_s": logic_s,
             "nlp_s": solver.solve_time_s,
@@ -172,25 +170,13 @@ def plan_gnpp(
         tl = time.perf_counter()
         actions, status, why = _logic_plan(task, forbidden, logic, left)
         logic_s += time.perf_counter() - tl
-        if actions is None and status is GnppStatus.INFEASIBLE and found and not verified:
-            # the proof rests on the conflicts: each must withstand a few more starts of the (local) solver
-            verified = True
-            keep = [k for k, c in enumerate(found) if not solver.refute(c.factors, guesses[k])]
-            if len(keep) < len(found):
-                log.info("%s: %d conflicts refuted by other starts", variant, len(found) - len(keep))
-                n_conf = len(found)
-                found[:] = [found[k] for k in keep]
-                guesses[:] = [guesses[k] for k in keep]
-                # forbidden = conflicts (in order) interleaved with blocked plans: rebuild from both
-                forbidden[:] = [f for f in forbidden if f not in conflict_seqs[:n_conf]] + [
-                    to_forbidden(c.factors) for c in found
-                ]
-                conflict_seqs[:] = [to_forbidden(c.factors) for c in found]
-                verified = False
-                continue
         if actions is None:
             assert status is not None
-            proof = f" ({len(forbidden)} learnt conflicts prove it)" if status is GnppStatus.INFEASIBLE else ""
+            proof = ""
+            if status is GnppStatus.INFEASIBLE:
+                proof = f" ({len(found)} learnt conflicts" + (
+                    f" and {blocked_plans} blocked plans prove it)" if blocked_plans else " prove it)"
+                )
             return result(status, f"{status.value}: {why}{proof}", it=it)
         if n0 is None:
             n0 = len(actions)
@@ -211,15 +197,19 @@ def plan_gnpp(
                     continue
                 conflict, values = None, dict(check.last.values) if check.last else {}
             else:
-                conflict, values = find_conflict(check, graph, opts)
+                conflict, values, n_refuted = _checked_conflict(check, graph, opts)
+                refuted += n_refuted
         except DeadlineError:
             return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s ({'; '.join(reasons[-2:])})", it=it)
         if conflict is not None:
             found.append(conflict)
-            guesses.append(dict(check.guess))
-            conflict_seqs.append(to_forbidden(conflict.factors))
-            forbidden.append(conflict_seqs[-1])
+            forbidden.append(to_forbidden(conflict.factors))
             log.info("%s iteration %d: %s", variant, it, forbidden[-1])
+            continue
+        if values is None:  # every conflict found was refuted: no proof either way, block this plan
+            forbidden.append(_whole(states))
+            blocked_plans += 1
+            reasons.append("conflicts refuted by other starts")
             continue
         laid = phases_of(lib, ik, actions, values)
         if isinstance(laid, str):
@@ -249,6 +239,27 @@ def plan_gnpp(
         forbidden.append(_whole(states))
         blocked_plans += 1
     return result(GnppStatus.TIMEOUT, f"no plan in {max_iterations} iterations ({'; '.join(reasons[-2:])})")
+
+
+def _checked_conflict(
+    check: Checker, graph: list, opts: ExtractOptions, retries: int = 2
+) -> tuple[Conflict | None, dict | None, int]:
+    """``find_conflict``, with each conflict checked from other starts before it is believed (a local
+    solver's failure is no proof). A refuted conflict's feasible point joins the guess (and corrects
+    the database) and the search runs again, up to ``retries`` times. Returns (conflict, None, n) or
+    (None, the full graph's solution, n) or (None, None, n) when every conflict found was refuted."""
+    for k in range(retries + 1):
+        conflict, values = find_conflict(check, graph, opts)
+        if conflict is None:
+            return None, values, k
+        point = check.solver.refute(conflict.factors, check.guess, seed=k)
+        if point is None:
+            return conflict, None, k
+        log.info("conflict refuted by another start: %s", conflict)
+        check.guess.update(point)
+        if check.db is not None:
+            check.db.correct(conflict.factors)
+    return None, None, retries + 1
 
 
 def _whole(states) -> ForbiddenSequence:

@@ -28,6 +28,7 @@ __all__ = ["FEAS_TOL", "Feasibility", "GraphSolver", "SolveResult"]
 log = logging.getLogger(__name__)
 FEAS_TOL = 1e-4  # [m or rad] a factor is satisfied when no row is off its bounds by more
 W_REG = 1e-3
+X_JITTER = np.array([0.06, 0.06, 0.01, 0.6])  # [m, m, m, rad] std of an object start's perturbation
 IPOPT = {
     "ipopt.print_level": 0,
     "print_time": False,
@@ -110,18 +111,25 @@ class GraphSolver:
         solver = ca.nlpsol("graph_nlp", "ipopt", nlp, IPOPT)
         return _Built(solver, ca.Function("g", [x], [g]), np.concatenate(lo), np.concatenate(hi), rows)
 
-    def refute(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = 4, seed: int = 0) -> bool:
-        """True if the subgraph is feasible from one of ``tries`` seeded random starts (arms perturbed
-        about their start postures): a check of a conflict before it is used as a proof."""
+    def refute(
+        self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = 4, seed: int = 0
+    ) -> Mapping[Var, FloatArray] | None:
+        """A feasible point of the subgraph found from one of ``tries`` seeded random starts, or None:
+        the check of a conflict before it is used (the solver is local). Arms start perturbed about
+        their start postures; objects about their guessed poses (a few cm, a fraction of a turn),
+        which also separates objects the guess put on top of each other."""
         rng = np.random.default_rng(seed)
         for _ in range(tries):
             start = {
-                v: (self.lib.home_q(v.owner) + rng.normal(0.0, 0.5, 7)) if v.kind == "q" else guess[v]
+                v: (self.lib.home_q(v.owner) + rng.normal(0.0, 0.5, 7))
+                if v.kind == "q"
+                else np.asarray(guess[v], float) + rng.normal(0.0, 1.0, 4) * X_JITTER
                 for v in variables(factors)
             }
-            if self.solve(factors, start).feasible:
-                return True
-        return False
+            res = self.solve(factors, start)
+            if res.feasible:
+                return res.values
+        return None
 
     def solve(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]) -> SolveResult:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
