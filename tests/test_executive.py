@@ -493,6 +493,52 @@ def test_table_clearing_executes_in_physics_knob_drawer_and_drops(tmp_path):
         hal.shutdown()
 
 
+def test_a_task_stopped_with_the_hand_on_the_knob_lets_go_and_replans_from_the_drawer_part_open(tmp_path):
+    """Cancelled while pulling the drawer: the hand still holds the knob, the drawer is part way out. The
+    next task lets go (the hand opens, the base backs off along the drawer's axis, checked by replay first),
+    senses the drawer where it is and plans from there; the drawer ends closed in the physics."""
+    from rlgp_exec.executive.world import drawer_openings
+
+    scene = load_scene(ROOT / "sim" / "scenes" / "table_clearing_hsr.toml")
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    rec = Recorder(tmp_path / "knob.mcap")
+    try:
+        ex = Executive(hal, scene, SimMocap(hal), recorder=rec)
+        pulling = threading.Event()
+        ex.actor.on_phase = lambda k, n: pulling.set() if k == 1 else None  # phase 1: open_drawer
+        original, sent = hal.write_setpoint, {"n": 0}
+
+        def counting(*a, **k):
+            if pulling.is_set():
+                sent["n"] += 1
+                if sent["n"] == 150:  # 1.5 s into the pull
+                    ex.cancel()
+            return original(*a, **k)
+
+        hal.write_setpoint = counting  # type: ignore[method-assign]
+        first = ex.run(["(open cabinet)"])
+        assert first.status is TaskStatus.CANCELLED and ex.knob == "cabinet", first.detail
+        opening = drawer_openings(scene, SimMocap(hal).poses())["cabinet"]
+        assert 0.03 < opening < 0.29, opening  # part way out
+        hal.write_setpoint = original  # type: ignore[method-assign]
+        ex.actor.on_phase = None
+        second = ex.run(["(closed cabinet)"])
+        assert second.status is TaskStatus.SUCCEEDED and second.verified, second.detail
+        assert ex.knob is None and second.actions[-1] == "(close_drawer cabinet)", second.actions
+        assert drawer_openings(scene, SimMocap(hal).poses())["cabinet"] <= 0.005
+        rec.close()
+        R = read_recording(rec.path)
+        kinds = [d["kind"] for _, d in R.topic("/events")]
+        assert "recovery" in kinds
+        states = [d["to"] for _, d in R.topic("/transitions")]
+        i = states.index("recovering")
+        assert states[i - 1] == "sensing" and states[i + 1] == "sensing" and "planning" in states[i + 1:]
+    finally:
+        rec.close()
+        hal.shutdown()
+
+
 def test_an_unreachable_goal_object_ends_infeasible_without_moving():
     scene = load_scene(ROOT / "tests" / "data" / "unreachable_hsr.toml")
     hal = make_backend("sim", scene=scene)

@@ -20,6 +20,7 @@ from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals, gripper_action
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
 from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.recovery import release_knob
 from rlgp_exec.executive.states import ExecState, StateMachine
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
@@ -295,14 +296,16 @@ class Executive:
                 if self.signals.cancel.is_set():
                     self.sm.to(S.IDLE, "cancelled")
                     return result(TaskStatus.CANCELLED, "cancelled before motion")
+                if self.knob is not None:  # stopped while driving a drawer: let go first
+                    stopped = self._release_knob(self.knob, stats)
+                    if stopped is not None:
+                        return result(*stopped)
                 unmet = self._unmet(goal)
                 if not unmet:
                     self.sm.to(S.IDLE, "goal holds")
                     if self.objects.senses:
                         return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
                     return result(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)")
-                if self.knob is not None:  # stopped while driving a drawer
-                    raise _FailedError(f"the hand holds the knob of {self.knob!r}: the planners start free of knobs")
                 self.sm.to(S.PLANNING, f"attempt {attempt + 1}")
                 scene = replace(self.scene, goal=goal)
                 from rlgp_exec.planning.registry import plan as run_planner
@@ -376,6 +379,34 @@ class Executive:
         except SceneError as e:  # the sensed world is not plannable (an object fell, ...)
             self.sm.to(S.IDLE, "bad sensed world")
             return result(TaskStatus.FAILED, f"sensed world: {e}")
+
+    def _release_knob(self, cabinet: str, stats: dict[str, float]) -> tuple[TaskStatus, str] | None:
+        """Open the hand on ``cabinet``'s knob and back off (``recovery.release_knob``), in RECOVERING, then
+        sense again. None when the hand is free; else how the task ends (e-stop, cancel, refused)."""
+        self.sm.to(S.RECOVERING, f"let go of the knob of {cabinet!r}")
+        release = release_knob(self.model, self.scene, cabinet)
+        if not release.ok:
+            raise _FailedError(f"the hand holds the knob of {cabinet!r} and cannot let go: {release.reason}")
+        self._event("recovery", action="release_knob", cabinet=cabinet)
+        outcome, seconds = self._act(release.plan, self._time(release.plan), self.scene)
+        stats["execution_time_s"] += seconds
+        self._hand_after(release.plan, outcome, self.scene)
+        if outcome.status is ActStatus.ESTOPPED:
+            self._latch_estop("e-stop while letting go of a knob")
+            return TaskStatus.ESTOPPED, "e-stop while letting go of the knob"
+        if outcome.status is ActStatus.CANCELLED:
+            self.sm.to(S.IDLE, "cancelled")
+            return TaskStatus.CANCELLED, "cancelled while letting go of the knob; at rest"
+        if outcome.status is ActStatus.VIOLATION:
+            v = outcome.violation
+            assert v is not None
+            self._event("violation", monitor=v.monitor, reaction=v.reaction.value, detail=v.detail)
+            if v.reaction is Reaction.FAULT:
+                raise _FaultError(str(v))
+            raise _FailedError(f"letting go of the knob of {cabinet!r}: {v}")
+        self.sm.to(S.SENSING, "let go of the knob")
+        self.sense()
+        return None
 
     def _act(self, plan: Plan, trajectories: list[Trajectory | None], scene: Scene) -> tuple[ActOutcome, float]:
         st = self._robot_state()

@@ -4,6 +4,7 @@
 
     IDLE -> SENSING -> PLANNING -> EXECUTING -> SENSING (verify) -> IDLE
     EXECUTING -> RECOVERING (safe stop, then replan) -> SENSING | FAULT
+    SENSING -> RECOVERING (let go of a drawer's knob: a motion of its own) -> SENSING
     any -> ESTOPPED (latched) --rearm--> IDLE
     any -> FAULT --reset--> IDLE
 

@@ -69,8 +69,9 @@ class Setpoint:
     q_wrapped: FloatArray
     mode: StreamMode
     finished: bool  # FOLLOW: trajectory done and reached; STOP: at rest; HOLD: always True
-    compute_us: float  # this cycle's Ruckig call, wall clock from Python [us]
-    ruckig_us: float  # Ruckig's own calculation time for the cycle [us]
+    compute_us: float  # this cycle's Ruckig calls, wall clock from Python [us]
+    ruckig_us: float  # Ruckig's own calculation time for the cycle, summed over its calls [us]
+    ruckig_calls: int = 1  # Ruckig updates this cycle (more than one: a blocked interval was resynchronised)
 
 
 def stop_time_bound(limits: JointLimits, dq: FloatArray, ddq: FloatArray) -> float:
@@ -115,6 +116,7 @@ class Streamer:
         self._traj: Trajectory | None = None
         self._offset = np.zeros(n)
         self._t_traj = 0.0
+        self._calls, self._calc_us = 0, 0.0  # this cycle's Ruckig updates and their calculation time [us]
 
     # ------------------------------------------------------------------ commands
     def reset(self, q: FloatArray, dq: FloatArray | None = None, ddq: FloatArray | None = None) -> None:
@@ -180,12 +182,16 @@ class Streamer:
         return self._out.trajectory.duration > BLOCKED_STRETCH * wanted
 
     def _update(self) -> Result | None:
-        """One Ruckig update; None when its synchronisation fails numerically (it raises then)."""
+        """One Ruckig update; None when its synchronisation fails numerically (it raises then). Counts
+        the call and Ruckig's own calculation time towards the cycle's."""
+        self._calls += 1
         try:
-            return self._otg.update(self._inp, self._out)
+            res = self._otg.update(self._inp, self._out)
         except RuckigError as e:
             log.debug("Ruckig: %s", str(e).splitlines()[0] if str(e) else type(e).__name__)
             return None
+        self._calc_us += float(self._out.calculation_duration)
+        return res
 
     def _resync(self) -> Result | None:
         """Longer horizons first (the reference further ahead, reached in that time), then each joint on
@@ -224,6 +230,7 @@ class Streamer:
             inp.target_position = self._hold_q.tolist()
             inp.target_velocity = [0.0] * self.limits.n
             inp.target_acceleration = [0.0] * self.limits.n
+        self._calls, self._calc_us = 0, 0.0
         t0 = time.perf_counter()
         res = self._update()
         if self.mode is StreamMode.FOLLOW and (res is None or (res == Result.Working and self._blocked())):
@@ -253,5 +260,6 @@ class Streamer:
             self.mode,
             finished,
             compute_us,
-            float(out.calculation_duration),
+            self._calc_us,
+            self._calls,
         )
