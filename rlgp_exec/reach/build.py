@@ -80,7 +80,11 @@ def graph_meta(model: RobotModel, scene: Scene, manipulator: str, params: RGPara
     import hashlib
     from dataclasses import asdict
 
-    robot_files = hashlib.sha256((model.config.folder / "robot.toml").read_bytes()).hexdigest()[:16]
+    # robot.toml and the URDF PyBullet checks against (a graph built before a collision-shape change
+    # keeps nodes and edges the robot no longer has, or lacks the ones it gained)
+    h = hashlib.sha256((model.config.folder / "robot.toml").read_bytes())
+    h.update(model.urdf.pybullet_path.read_bytes())
+    robot_files = h.hexdigest()[:16]
     return {
         "robot": model.name,
         "robot_files": robot_files,

@@ -23,6 +23,7 @@ log = logging.getLogger(__name__)
 OMPL_PLANNERS = ("RRTConnect", "PRM")
 OMPL_CLEARANCE = 3 * CLEARANCE  # [m] required of OMPL's states
 REDUCE_STEPS = 20  # OMPL vertex-reduction attempts on a found path
+END_BALL = 0.25  # [m or rad, largest joint difference] round each end: OMPL's states need only CLEARANCE there
 
 
 _SEEDED: list[bool] = []
@@ -85,14 +86,21 @@ def plan_ompl(
         return q
 
     def valid(s) -> bool:
-        # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check
+        # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check;
+        # near an end (a grasp beside a wall) the exact check's own clearance, or no end next to a
+        # fixture could be left (the path found is edge-checked exactly all the same)
         q = full(s)
-        return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
+        d = checker.distance(q)
+        if d < OMPL_CLEARANCE:
+            near = min(np.abs(q[idx] - q1[idx]).max(), np.abs(q[idx] - q2[idx]).max()) <= END_BALL
+            if not (near and d >= CLEARANCE):
+                return False
+        return not checker.self_collision(q)
 
-    if not (valid_q(checker, q1) and valid_q(checker, q2)):  # OMPL would spend its whole timeout on it
-        log.info("OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding)",
-                 "start" if not valid_q(checker, q1) else "goal", OMPL_CLEARANCE)
-        return None
+    for what, q in (("start", q1), ("goal", q2)):
+        if checker.distance(q) < CLEARANCE or checker.self_collision(q):  # OMPL would spend its timeout on it
+            log.info("OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding)", what, CLEARANCE)
+            return None
     ss.setStateValidityChecker(valid)
     start, goal = space.allocState(), space.allocState()
     for k, i in enumerate(idx):
@@ -116,8 +124,3 @@ def plan_ompl(
         log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)
     log.info("OMPL %s found no certified path in %.1f s", planner, timeout)
     return None
-
-
-def valid_q(checker: WorldChecker, q: FloatArray) -> bool:
-    """OMPL's validity of a whole configuration: OMPL_CLEARANCE from the fixtures, no self-collision."""
-    return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
