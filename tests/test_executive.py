@@ -216,22 +216,29 @@ def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_e
     assert ex.sm.state is ExecState.IDLE and hal.lifecycle is Lifecycle.INACTIVE
 
 
-def test_a_task_cancelled_mid_carry_is_finished_from_the_hand(sim_exec):
-    """Pre-empted while carrying the block: the next task plans from the object in the hand (no new
-    pick), and the goal holds in the physics."""
-    ex, hal, rec = sim_exec
-    carrying = threading.Event()
-    ex.actor.on_phase = lambda k, n: carrying.set() if k == 2 else None  # after the pick and its lift
+def _cancel_during_phase(ex, hal, phase: int, after: int):
+    """Wrap ``hal.write_setpoint``: the task is cancelled at the ``after``-th setpoint once phase ``phase``
+    has begun; returns the original method."""
+    started = threading.Event()
+    ex.actor.on_phase = lambda k, n: started.set() if k == phase else None
     original, sent = hal.write_setpoint, {"n": 0}
 
     def counting(*a, **k):
-        if carrying.is_set():
+        if started.is_set():
             sent["n"] += 1
-            if sent["n"] == 60:  # 0.6 s into the carry
+            if sent["n"] == after:
                 ex.cancel()
         return original(*a, **k)
 
     hal.write_setpoint = counting  # type: ignore[method-assign]
+    return original
+
+
+def test_a_task_cancelled_mid_carry_is_finished_from_the_hand(sim_exec):
+    """Pre-empted while carrying the block: the next task plans from the object in the hand (no new
+    pick), and the goal holds in the physics."""
+    ex, hal, rec = sim_exec
+    _cancel_during_phase(ex, hal, phase=2, after=60)  # 0.6 s into the carry (after the pick and its lift)
     first = ex.run()
     assert first.status is TaskStatus.CANCELLED and ex.held == "block", first.detail
     assert hal.sim.object_pose("block")[2, 3] > 0.49 + 0.03 and ex.sm.state is ExecState.IDLE  # lifted, at rest
@@ -505,18 +512,7 @@ def test_a_task_stopped_with_the_hand_on_the_knob_lets_go_and_replans_from_the_d
     rec = Recorder(tmp_path / "knob.mcap")
     try:
         ex = Executive(hal, scene, SimMocap(hal), recorder=rec)
-        pulling = threading.Event()
-        ex.actor.on_phase = lambda k, n: pulling.set() if k == 1 else None  # phase 1: open_drawer
-        original, sent = hal.write_setpoint, {"n": 0}
-
-        def counting(*a, **k):
-            if pulling.is_set():
-                sent["n"] += 1
-                if sent["n"] == 150:  # 1.5 s into the pull
-                    ex.cancel()
-            return original(*a, **k)
-
-        hal.write_setpoint = counting  # type: ignore[method-assign]
+        original = _cancel_during_phase(ex, hal, phase=1, after=150)  # 1.5 s into open_drawer's pull
         first = ex.run(["(open cabinet)"])
         assert first.status is TaskStatus.CANCELLED and ex.knob == "cabinet", first.detail
         opening = drawer_openings(scene, SimMocap(hal).poses())["cabinet"]
