@@ -102,6 +102,35 @@ def _free_spot(
     return pts[int(np.argmax(d))].copy()
 
 
+def _clear_spot(
+    T_world_surface: FloatArray,
+    half: FloatArray,
+    size: Sequence[float],
+    near: FloatArray,
+    others: list[FloatArray],
+    other_sizes: list[Sequence[float]],
+    gap: float = 0.04,
+) -> FloatArray:
+    """The xy (2,) on the surface nearest ``near`` whose footprint circle clears the other resting
+    objects' by ``gap`` (fingers fit between): an object put down on a large surface (the table) where
+    it was picked up would start on top of whatever rests there (objects taken off one stack one after
+    another all start at one point, where a signed distance has no gradient). ``near`` if nothing does."""
+    r = math.hypot(size[0], size[1]) / 2
+    need = [r + math.hypot(s[0], s[1]) / 2 + gap for s in other_sizes]
+    margin = max(size[0], size[1]) / 2
+    ax, ay = (max(float(h) - margin, 0.0) for h in half[:2])
+    grid = np.array([(x, y) for x in np.linspace(-ax, ax, 41) for y in np.linspace(-ay, ay, 25)])
+    pts = T_world_surface[:2, 3] + grid @ T_world_surface[:2, :2].T
+    ok = np.ones(len(pts), bool)
+    for c, d in zip(others, need, strict=True):
+        ok &= np.linalg.norm(pts - np.asarray(c)[None, :], axis=1) >= d
+    if not others or not ok.any():
+        return np.asarray(near, float).copy()
+    dist = np.linalg.norm(pts - np.asarray(near)[None, :], axis=1)
+    dist[~ok] = np.inf
+    return pts[int(np.argmin(dist))].copy()
+
+
 def initial_guess(
     lib: FactorLib, ik: TopIK, states: Sequence[SymbolicState], variables: Sequence[Var]
 ) -> dict[Var, FloatArray]:
@@ -133,7 +162,11 @@ def initial_guess(
                     region = any(r.name == p for r in lib.scene.regions)
                     others = [world[b][:2] for b, pb in par.items() if b != o and pb not in arms]
                     T, half, z = lib.surface(p)
-                    xy = _free_spot(T, half, lib.objects[o].size, others) if region else world[o][:2]
+                    if region:
+                        xy = _free_spot(T, half, lib.objects[o].size, others)
+                    else:
+                        sizes = [lib.objects[b].size for b, pb in par.items() if b != o and pb not in arms]
+                        xy = _clear_spot(T, half, lib.objects[o].size, world[o][:2], others, sizes)
                     world[o] = np.array([xy[0], xy[1], z + h / 2 + PLACE_LIFT, world[o][3]])
                 arm = prev.get(o)
                 if arm in arms:
