@@ -32,7 +32,7 @@ FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable
 class ExtractOptions:
     time_search: bool = True  # t
     relaxations: bool = True  # r
-    convergence: bool = True  # n (with the deletion filter)
+    convergence: bool = True  # n (with QuickXplain)
     database: bool = False  # g
 
 
@@ -53,7 +53,7 @@ class Checker:
     """Feasibility of subgraphs: the database first (if any), else an NLP solve (counted); raises
     ``DeadlineError`` once ``time.perf_counter()`` passes ``deadline``. A subgraph asked about again
     within one plan's check is answered from the earlier solve (the time search, the convergence step
-    and the deletion filter revisit the same windows); ``last`` is that solve's result either way."""
+    and QuickXplain revisit the same windows); ``last`` is that solve's result either way."""
 
     def __init__(
         self,

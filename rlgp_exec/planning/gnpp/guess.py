@@ -86,6 +86,19 @@ def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatAr
     return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
+def _rel_T(r: FloatArray) -> FloatArray:
+    """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``geometry._rel_pose``, numerically)."""
+    c, s = math.cos(r[2]), math.sin(r[2])
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    ct, st = math.cos(r[3]), math.sin(r[3])
+    Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
+    R = Ry @ T_TOOL_UPRIGHT @ Rz
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -r[0] * R[:, 2] + r[1] * np.array([0.0, 1.0, 0.0])
+    return T
+
+
 def _free_spot(
     T_world_surface: FloatArray, half: FloatArray, size: Sequence[float], others: list[FloatArray], n: int = 7
 ) -> FloatArray:
@@ -171,7 +184,13 @@ def initial_guess(
                 arm = prev.get(o)
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    q[arm] = ik.solve(arm, top, q[arm])[1]
+                    ok, q[arm] = ik.solve(arm, top, q[arm])
+                    if ok and o in held:
+                        # the object put down turned as the hand holds it: the Kin factor's yaw row
+                        # (sine of the yaw difference) is stationary a quarter turn off, where a
+                        # start with the pose's old yaw could leave it (a false conflict)
+                        T = lib.tool_T(arm, q[arm]) @ _rel_T(held[o])
+                        world[o][3] = math.atan2(T[1, 0], T[0, 0])
             out[Var("x", o, t)] = world[o].copy()
         for m in arms:
             out[Var("q", m, t)] = q[m].copy()

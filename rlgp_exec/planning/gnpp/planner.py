@@ -6,7 +6,7 @@ task (``symbolic.reformulate``, the paper's compilation) -> again. A solution is
 paths and replayed (``validate_plan``); a replay failure forbids that whole state sequence.
 
 Variants (paper Sec. VIII-C): ``gnpp_t`` (time search on the full graph: conflicts are whole state
-windows), ``gnpp_tr`` (+ relaxations), ``gnpp_trn`` (+ convergence heuristic and deletion filter:
+windows), ``gnpp_tr`` (+ relaxations), ``gnpp_trn`` (+ convergence heuristic and QuickXplain:
 minimal conflicts), ``gnpp_trng`` (+ database of feasible/infeasible subgraphs), and ``oneway``
 (solve the full graph, block the whole plan on failure).
 """
