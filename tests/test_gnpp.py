@@ -263,3 +263,17 @@ def test_obstacle_tower_is_planned_not_declared_infeasible():
     assert res.plan.validation is not None and res.plan.validation.ok
     moved = {a.split()[2] for a in res.plan.actions if a.startswith("(pick")}
     assert moved & {"o1", "o2"}, res.plan.actions  # an obstacle was cleared out of the region
+
+
+def test_objects_wider_than_the_open_gripper_are_not_picked(pr2):
+    """hanoi_pr2's 8 and 10 cm discs do not fit between the open PR2 fingertips (7.5 cm): every plan
+    that lets one go fails the replay (the fingers touch it lifting off), so none is tried: the task
+    ends infeasible at once, saying why, without an NLP."""
+    scene = load_scene(SCENES / "hanoi_pr2.toml")
+    assert FactorLib(pr2, scene).too_wide() == {"d_large": 0.1, "d_mid": 0.08}
+    res = plan_gnpp(scene, "gnpp_trn", timeout_s=30.0)
+    assert res.status is GnppStatus.INFEASIBLE
+    assert "wider than the open gripper" in res.plan.reason and "d_mid" in res.plan.reason
+    assert res.counters["nlp"] == 0
+    small = _tower(["b1"], ["(on b1 goal_region)"])  # 5 cm blocks fit, with room to be let go
+    assert FactorLib(pr2, small).too_wide() == {} and FactorLib(pr2, small).grasp_offset_max("b1") > 0

@@ -3,9 +3,9 @@
 For each relaxation in order (loose to tight) the relaxed graph is split into connected components;
 each component is solved; the first infeasible one is cut down by the double binary search on the
 time index, then (``convergence``) to the factors violated at the optimizer's convergence point if
-those alone are infeasible, and finally by a deletion filter (each factor dropped in turn, kept out
-if the rest stays infeasible) so that the conflict is minimal (Def. 4.4): infeasible, and feasible
-without any one of its factors. Every solve goes through ``Checker`` (counts, optional database).
+those alone are infeasible, and finally by QuickXplain (divide and conquer over the factors) so
+that the conflict is minimal (Def. 4.4): infeasible, and feasible without any one of its factors.
+Every solve goes through ``Checker`` (counts, optional database).
 """
 
 from __future__ import annotations
@@ -13,26 +13,26 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
-from rlgp_exec.planning.gnpp.solver import GraphSolver, SolveResult
+from rlgp_exec.planning.gnpp.solver import FEAS_TOL, Feasibility, GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
-FILTER_MAX = 12  # the deletion filter (one solve per factor) runs on conflicts up to this size
-FILTER_MAX_NO_ROBOT = 40  # ... or this size when no factor has an arm variable (object poses only)
+FILTER_MAX = 60  # conflicts up to this size are made minimal (QuickXplain)
+FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable (object poses only)
 
 
 @dataclass(frozen=True)
 class ExtractOptions:
     time_search: bool = True  # t
     relaxations: bool = True  # r
-    convergence: bool = True  # n (with the deletion filter)
+    convergence: bool = True  # n (with QuickXplain)
     database: bool = False  # g
 
 
@@ -51,7 +51,9 @@ class DeadlineError(Exception):
 
 class Checker:
     """Feasibility of subgraphs: the database first (if any), else an NLP solve (counted); raises
-    ``DeadlineError`` once ``time.perf_counter()`` passes ``deadline``."""
+    ``DeadlineError`` once ``time.perf_counter()`` passes ``deadline``. A subgraph asked about again
+    within one plan's check is answered from the earlier solve (the time search, the convergence step
+    and QuickXplain revisit the same windows); ``last`` is that solve's result either way."""
 
     def __init__(
         self,
@@ -62,43 +64,108 @@ class Checker:
     ) -> None:
         self.solver, self.guess, self.db, self.deadline = solver, dict(guess), db, deadline
         self.last: SolveResult | None = None
+        self._seen: dict[frozenset[Factor], tuple[tuple[Factor, ...], SolveResult]] = {}
 
     def feasible(self, factors: Sequence[Factor]) -> bool:
+        self.last = None
         if not factors:
             return True
+        seen = self._seen.get(frozenset(factors))
+        if seen is not None:
+            order, res = seen
+            if tuple(factors) != order:  # the violations in the order asked
+                viol = dict(zip(order, res.violations, strict=True))
+                res = replace(res, violations=tuple(viol[f] for f in factors))
+            self.last = res
+            return res.feasible
         if time.perf_counter() > self.deadline:
             raise DeadlineError
-        self.last = None
         if self.db is not None:
             known = self.db.lookup(factors)
             if known is not None:
                 return known
         res = self.solver.solve(factors, self.guess)
         self.last = res
+        self._seen[frozenset(factors)] = (tuple(factors), res)
         if self.db is not None:
             self.db.add(factors, res.feasible)
         return res.feasible
 
+    def proven_feasible(self, factors: Sequence[Factor], values: Mapping[Var, FloatArray]) -> None:
+        """``factors`` has the feasible point ``values`` (found from another start): remembered as
+        feasible, so the search asked again does not return it as a conflict."""
+        res = SolveResult(Feasibility.FEASIBLE, dict(values), (0.0,) * len(factors), 0.0)
+        self._seen[frozenset(factors)] = (tuple(factors), res)
 
-def _time_search(check: Checker, g: list[Factor]) -> list[Factor]:
-    """The minimal time window [f, l] of an infeasible component (double binary search)."""
+    def forget_infeasible(self) -> None:
+        """Drop the remembered "infeasible" answers (once a conflict was refuted from another start
+        and the guess moved: they are asked again from the new guess); "feasible" stays proven."""
+        self._seen = {k: v for k, v in self._seen.items() if v[1].feasible}
+
+
+def _keep(check: Checker) -> None:
+    """A feasible window's solution warm-starts the larger windows after it."""
+    if check.last is not None:
+        check.guess.update(check.last.values)
+
+
+def _time_search(check: Checker, g: list[Factor], coarse: bool = False) -> list[Factor] | None:
+    """The minimal time window [f, l] of a component, or None if the component is feasible (then
+    ``check.last`` is the solve of all of it). Double search on the time index (Sec. VI-A), galloping:
+    the smallest l with G[t0 .. l] infeasible is bracketed by windows of 1, 2, 4, ... steps from t0,
+    then bisected; likewise the largest f with G[f .. l] infeasible, with windows growing back from l.
+    Small feasible windows are cheap and warm-start the next ones; an infeasible verdict is the
+    expensive kind (the solver runs to its limits), and this way the infeasible windows solved are
+    the smallest ones, not the whole component first (the paper's "numerous small and feasible
+    problems first")."""
     t0, t1 = times_of(g)
-    lo, hi = t0, t1  # smallest l with G[t0 .. l] infeasible; G[t0 .. t1] is
+    lo, hi, n = t0, None, 1  # G[t0 .. lo-1] is feasible; G[t0 .. hi] is infeasible
+    while hi is None:
+        last = min(t0 + n - 1, t1)
+        if check.feasible(time_slice(g, t0, last)):
+            if last == t1:
+                return None
+            _keep(check)
+            lo = last + 1
+            n *= 2
+        else:
+            hi = last
+    if hi > lo and check.last is not None:
+        # the convergence point (Sec. VI-C) of the first infeasible window: the time span of the factors
+        # violated there is one more window to try; if it is infeasible the search goes on inside it,
+        # which skips the bisection's largest (slowest) infeasible windows
+        window = time_slice(g, t0, hi)
+        bad = [f for f, v in zip(window, check.last.violations, strict=True) if v > FEAS_TOL]
+        if bad:
+            a, b = times_of(bad)
+            if (a, b) != (t0, hi) and not check.feasible(time_slice(g, a, b)):
+                return _time_search(check, time_slice(g, a, b), coarse) or time_slice(g, a, b)
+    if coarse and len(time_slice(g, t0, hi)) > FILTER_MAX:
+        return time_slice(g, t0, hi)  # no bisection through windows of this size (see find_conflict)
     while lo < hi:
         mid = (lo + hi) // 2
         if check.feasible(time_slice(g, t0, mid)):
+            _keep(check)
             lo = mid + 1
         else:
             hi = mid
     last = hi
-    lo, hi = t0, last  # largest f with G[f .. last] infeasible; G[t0 .. last] is
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
+    lo, hi, n = last + 1, t0, 1  # G[lo .. last] is feasible (empty at first); G[hi .. last] is infeasible
+    while True:
+        first = max(last - n + 1, t0)
+        if first == t0 or not check.feasible(time_slice(g, first, last)):
+            hi = first
+            break
+        lo = first
+        n *= 2
+    while hi + 1 < lo:  # the largest f in [hi, lo - 1] with G[f .. last] infeasible
+        mid = (hi + lo) // 2
         if check.feasible(time_slice(g, mid, last)):
-            hi = mid - 1
-        else:
             lo = mid
-    return time_slice(g, lo, last)
+        else:
+            hi = mid
+    log.debug("time window [%d, %d] of [%d, %d]", hi, last, t0, t1)
+    return time_slice(g, hi, last)
 
 
 def _convergence(check: Checker, g: list[Factor]) -> list[Factor]:
@@ -119,19 +186,25 @@ def _convergence(check: Checker, g: list[Factor]) -> list[Factor]:
     return g
 
 
-def _deletion_filter(check: Checker, g: list[Factor]) -> list[Factor]:
-    out = list(g)
-    for f in list(g):
-        trial = [h for h in out if h is not f]
-        if trial and not check.feasible(trial):
-            out = trial
-    # a minimal infeasible subgraph is connected (Property 4.5): keep the infeasible component
-    comps = components(out)
-    if len(comps) > 1:
-        for c in comps:
-            if not check.feasible(c):
-                return c
-    return out
+def _quickxplain(check: Checker, g: list[Factor]) -> list[Factor]:
+    """A minimal infeasible subset of the infeasible ``g`` (Def. 4.4) by divide and conquer (Junker's
+    QuickXplain, the paper's ref. [27]): O(k log(n/k)) checks for a conflict of k of n factors, where a
+    deletion filter needs n, each of the n - k deletions that stay infeasible an expensive verdict.
+    Halves are split in time order, so they stay local. (Being minimal, it is connected: Prop. 4.5.)"""
+    pos = {f: i for i, f in enumerate(g)}
+
+    def qx(base: list[Factor], delta: bool, cand: list[Factor]) -> list[Factor]:
+        if delta and not check.feasible(base):
+            return []
+        if len(cand) == 1:
+            return cand
+        k = len(cand) // 2
+        c1, c2 = cand[:k], cand[k:]
+        d2 = qx(base + c1, True, c2)
+        d1 = qx(base + d2, bool(d2), c1)
+        return d1 + d2
+
+    return sorted(qx([], False, list(g)), key=pos.__getitem__)
 
 
 def find_conflict(
@@ -142,7 +215,12 @@ def find_conflict(
     values: dict[Var, FloatArray] = {}
     for rel in order:
         for comp in components(relax(graph, rel)):
-            if check.feasible(comp):
+            # the full graph (every relaxation feasible): its windows are whole stretches of the plan,
+            # each infeasible verdict the slowest kind; with the convergence heuristic, a window it
+            # cannot cut below FILTER_MAX is not bisected further (the planner then blocks the plan)
+            coarse = rel is Relaxation.NONE and opts.convergence
+            window = _time_search(check, comp, coarse) if opts.time_search else None if check.feasible(comp) else comp
+            if window is None:
                 if check.last is not None:  # a looser relaxation's solution warm-starts the tighter ones
                     check.guess.update(check.last.values)
                 if rel is Relaxation.NONE and check.last is not None:
@@ -153,12 +231,12 @@ def find_conflict(
                         return Conflict(tuple(comp), rel), {}
                     values.update(res.values)
                 continue
-            sub = _time_search(check, comp) if opts.time_search else comp
+            sub = window
             if opts.convergence:
                 sub = _convergence(check, sub)
                 # larger ones stay as found (small, not proven minimal); without arms the NLPs are tiny
                 if len(sub) <= (FILTER_MAX_NO_ROBOT if not any(f.robot for f in sub) else FILTER_MAX):
-                    sub = _deletion_filter(check, sub)
+                    sub = _quickxplain(check, sub)
             log.info("conflict (%s, %d factors): %s", rel, len(sub), "; ".join(map(str, sub)))
             return Conflict(tuple(sub), rel), {}
     return None, values

@@ -36,6 +36,11 @@ GRASP_DEPTH = 0.025  # [m] the tool point below an object's top (at most half it
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
 PAN_CROSS_MAX = 0.1  # [rad] (PR2) shoulder pan towards the other arm's side at most
+#: (PR2) the open fingertips' inner faces this far from the tool point along the closing axis [m]:
+#: probed in the PyBullet model at the 0.5 rad finger opening every plan keeps
+FINGER_INNER = 0.0375
+FINGER_CLEAR = 0.003  # [m] an object let go keeps this much from the open fingers (replay tolerance 2 mm)
+FINGER_UP = 0.025  # [m] the second point of each open finger, this far above its tip (PR2 finger links)
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 #: object frame in the tool frame for an upright object held from above (tool x = approach = down)
 T_TOOL_UPRIGHT = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -136,6 +141,17 @@ class FactorLib:
         h = self.objects[obj].size[2]
         return np.array([h / 2 - min(GRASP_DEPTH, h / 2), 0.0, 0.0, 0.0])
 
+    def grasp_offset_max(self, obj: str) -> float:
+        """How far [m] the object's centre may sit off the tool point along the closing axis: within the
+        finger pads, and so that the open fingers (``FINGER_INNER``) stay ``FINGER_CLEAR`` off its faces
+        once it is let go (the hand lifts off past it). Negative: wider than the open gripper."""
+        half = min(self.objects[obj].size[:2]) / 2
+        return min(half - 0.015, FINGER_INNER - half - FINGER_CLEAR)
+
+    def too_wide(self) -> dict[str, float]:
+        """Objects the open gripper cannot close round (and let go) without touching: name -> width [m]."""
+        return {o: min(v.size[:2]) for o, v in self.objects.items() if self.grasp_offset_max(o) < 0.0}
+
     def surface(self, support: str) -> tuple[FloatArray, tuple[float, float], float]:
         return _target_surface(self.scene, support)
 
@@ -143,7 +159,7 @@ class FactorLib:
     def arm_shapes(self, arm: str) -> tuple[ca.Function, list[float], int]:
         """(q (7,) -> (points (3, K) world, T_tool), radii, n_body): elbow, forearm, wrist, hand, two
         fingers, the upper arm (the first ``n_body``: against objects and fixtures too), then the tool
-        point (arm against arm only)."""
+        point (arm against arm only), then two points up the fingers (against objects, ``ColHO``)."""
         if arm not in self._arm:
             man = self.model.manipulator(arm)
             names = [self.model.joint_names[i] for i in self.model.group(man.group)]
@@ -157,9 +173,15 @@ class FactorLib:
             Ts, Te, Tw, Tt = self.model.casadi_fk((shoulder, elbow, wrist, man.tool_frame))(q)
             ps, pe, pw, pt = Ts[:3, 3], Te[:3, 3], Tw[:3, 3], Tt[:3, 3]
             closing = Tt[:3, :3] @ ca.DM(man.closing)
-            pts = [pe, 0.5 * (pe + pw), pw, pt + 0.5 * (pw - pt), pt + 0.045 * closing, pt - 0.045 * closing]
+            approach = Tt[:3, :3] @ ca.DM(man.approach)
+            pts = [pe, 0.5 * (pe + pw), pw, pt + 0.5 * (pw - pt), pt + 0.049 * closing, pt - 0.049 * closing]
             pts += [0.5 * (ps + pe), pt]
-            radii = [0.07, 0.06, 0.06, 0.045, 0.012, 0.012, 0.08, 0.035]
+            # the open fingers widen above their tips (probed in the PyBullet PR2: the inner faces at
+            # FINGER_INNER, the outer ones at 6 cm at the tip, 7 cm 3 cm up); between the tips and the
+            # hand sphere a neighbouring block met them in the replay
+            up = FINGER_UP * approach
+            pts += [pt + 0.056 * closing - up, pt - 0.056 * closing - up]
+            radii = [0.07, 0.06, 0.06, 0.045, 0.011, 0.011, 0.08, 0.035, 0.016, 0.016]
             fn = ca.Function(f"shapes_{arm}", [q7], [ca.horzcat(*pts), Tt])
             self._arm[arm] = (fn, radii, 7)
         return self._arm[arm]
@@ -217,8 +239,8 @@ class FactorLib:
         r, rows = ca.SX.sym("r", 4), Rows.empty()
         r0 = self.held_pose(obj)
         rows.add(r[0] - r0[0], 0.0, 0.0)  # the tool point GRASP_DEPTH below the top
-        half = min(self.objects[obj].size[:2]) / 2
-        rows.add(r[1], -max(half - 0.015, 0.0), max(half - 0.015, 0.0))  # along the finger pads
+        s_max = max(self.grasp_offset_max(obj), 0.0)
+        rows.add(r[1], -s_max, s_max)  # across the finger pads: the open fingers clear of the faces
         rows.add(ca.sin(2 * r[2]), 0.0, 0.0)  # the fingers close across two opposite faces
         rows.add(r[3], -MAX_TILT, MAX_TILT)
         return [r], rows
@@ -289,7 +311,7 @@ class FactorLib:
 
     def _f_ColHO(self, arm: str, obj: str):
         """The hand and fingers clear of a resting object (not the one the hand has just let go)."""
-        return self._arm_object(arm, obj, (3, 4, 5))
+        return self._arm_object(arm, obj, (3, 4, 5, 8, 9))
 
     def _f_ColOO(self, obj_a: str, obj_b: str):
         """Two upright boxes apart: a's centre outside b's box grown by a's footprint radius sideways and

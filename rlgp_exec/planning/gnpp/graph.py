@@ -35,7 +35,7 @@ class Relaxation(enum.Flag):
 
     NONE = 0
     NO_ROBOT = enum.auto()  # robot variables and every factor on them
-    NO_COL = enum.auto()  # collision factors
+    NO_COL = enum.auto()  # collision factors between two variables (arm-arm, arm-object, object-object)
     NO_TIME = enum.auto()  # time-consistency factors (Equal)
 
 
@@ -54,7 +54,7 @@ def relax(factors: Iterable[Factor], r: Relaxation) -> list[Factor]:
     for f in factors:
         if Relaxation.NO_ROBOT in r and f.robot:
             continue
-        if Relaxation.NO_COL in r and f.collision:
+        if Relaxation.NO_COL in r and f.coupling:
             continue
         if Relaxation.NO_TIME in r and f.time_consistency:
             continue

@@ -86,6 +86,19 @@ def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatAr
     return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
+def _rel_T(r: FloatArray) -> FloatArray:
+    """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``geometry._rel_pose``, numerically)."""
+    c, s = math.cos(r[2]), math.sin(r[2])
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    ct, st = math.cos(r[3]), math.sin(r[3])
+    Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
+    R = Ry @ T_TOOL_UPRIGHT @ Rz
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -r[0] * R[:, 2] + r[1] * np.array([0.0, 1.0, 0.0])
+    return T
+
+
 def _free_spot(
     T_world_surface: FloatArray, half: FloatArray, size: Sequence[float], others: list[FloatArray], n: int = 7
 ) -> FloatArray:
@@ -100,6 +113,35 @@ def _free_spot(
         return T_world_surface[:2, 3].copy()
     d = np.min(np.linalg.norm(pts[:, None, :] - np.asarray(others)[None, :, :], axis=2), axis=1)
     return pts[int(np.argmax(d))].copy()
+
+
+def _clear_spot(
+    T_world_surface: FloatArray,
+    half: FloatArray,
+    size: Sequence[float],
+    near: FloatArray,
+    others: list[FloatArray],
+    other_sizes: list[Sequence[float]],
+    gap: float = 0.04,
+) -> FloatArray:
+    """The xy (2,) on the surface nearest ``near`` whose footprint circle clears the other resting
+    objects' by ``gap`` (fingers fit between): an object put down on a large surface (the table) where
+    it was picked up would start on top of whatever rests there (objects taken off one stack one after
+    another all start at one point, where a signed distance has no gradient). ``near`` if nothing does."""
+    r = math.hypot(size[0], size[1]) / 2
+    need = [r + math.hypot(s[0], s[1]) / 2 + gap for s in other_sizes]
+    margin = max(size[0], size[1]) / 2
+    ax, ay = (max(float(h) - margin, 0.0) for h in half[:2])
+    grid = np.array([(x, y) for x in np.linspace(-ax, ax, 41) for y in np.linspace(-ay, ay, 25)])
+    pts = T_world_surface[:2, 3] + grid @ T_world_surface[:2, :2].T
+    ok = np.ones(len(pts), bool)
+    for c, d in zip(others, need, strict=True):
+        ok &= np.linalg.norm(pts - np.asarray(c)[None, :], axis=1) >= d
+    if not others or not ok.any():
+        return np.asarray(near, float).copy()
+    dist = np.linalg.norm(pts - np.asarray(near)[None, :], axis=1)
+    dist[~ok] = np.inf
+    return pts[int(np.argmin(dist))].copy()
 
 
 def initial_guess(
@@ -133,12 +175,22 @@ def initial_guess(
                     region = any(r.name == p for r in lib.scene.regions)
                     others = [world[b][:2] for b, pb in par.items() if b != o and pb not in arms]
                     T, half, z = lib.surface(p)
-                    xy = _free_spot(T, half, lib.objects[o].size, others) if region else world[o][:2]
+                    if region:
+                        xy = _free_spot(T, half, lib.objects[o].size, others)
+                    else:
+                        sizes = [lib.objects[b].size for b, pb in par.items() if b != o and pb not in arms]
+                        xy = _clear_spot(T, half, lib.objects[o].size, world[o][:2], others, sizes)
                     world[o] = np.array([xy[0], xy[1], z + h / 2 + PLACE_LIFT, world[o][3]])
                 arm = prev.get(o)
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    q[arm] = ik.solve(arm, top, q[arm])[1]
+                    ok, q[arm] = ik.solve(arm, top, q[arm])
+                    if ok and o in held:
+                        # the object put down turned as the hand holds it: the Kin factor's yaw row
+                        # (sine of the yaw difference) is stationary a quarter turn off, where a
+                        # start with the pose's old yaw could leave it (a false conflict)
+                        T = lib.tool_T(arm, q[arm]) @ _rel_T(held[o])
+                        world[o][3] = math.atan2(T[1, 0], T[0, 0])
             out[Var("x", o, t)] = world[o].copy()
         for m in arms:
             out[Var("q", m, t)] = q[m].copy()

@@ -6,13 +6,14 @@ task (``symbolic.reformulate``, the paper's compilation) -> again. A solution is
 paths and replayed (``validate_plan``); a replay failure forbids that whole state sequence.
 
 Variants (paper Sec. VIII-C): ``gnpp_t`` (time search on the full graph: conflicts are whole state
-windows), ``gnpp_tr`` (+ relaxations), ``gnpp_trn`` (+ convergence heuristic and deletion filter:
+windows), ``gnpp_tr`` (+ relaxations), ``gnpp_trn`` (+ convergence heuristic and QuickXplain:
 minimal conflicts), ``gnpp_trng`` (+ database of feasible/infeasible subgraphs), and ``oneway``
 (solve the full graph, block the whole plan on failure).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import time
@@ -21,9 +22,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.gnpp.conflicts import Checker, Conflict, DeadlineError, ExtractOptions, find_conflict
+from rlgp_exec.planning.gnpp.conflicts import (
+    FILTER_MAX,
+    FILTER_MAX_NO_ROBOT,
+    Checker,
+    Conflict,
+    DeadlineError,
+    ExtractOptions,
+    find_conflict,
+)
 from rlgp_exec.planning.gnpp.database import SubgraphDB
-from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.geometry import FINGER_INNER, FactorLib
 from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
@@ -117,7 +126,7 @@ def plan_gnpp(
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     opts = VARIANTS[variant]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
@@ -128,6 +137,11 @@ def plan_gnpp(
         db = SubgraphDB() if memory is None else memory.subgraph_db(scene, fixed)
         db.bind(lib.call_context())
     task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    wide = lib.too_wide()
+    if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
+        ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
+        task = dataclasses.replace(task, operators=ops)
+        log.warning("%s: wider than the open gripper, not picked: %s", scene.name, wide)
     objects = [o.name for o in scene.objects]
     forbidden: list[ForbiddenSequence] = []
     found: list[Conflict] = []
@@ -146,6 +160,7 @@ def plan_gnpp(
             "iterations": it,
             "logic_s": logic_s,
             "nlp_s": solver.solve_time_s,
+            "cpu_s": time.process_time() - c0,  # this process's CPU time (the wall time counts a shared machine's load)
         }
         if plan is None:
             plan = Plan(
@@ -177,6 +192,10 @@ def plan_gnpp(
                 proof = f" ({len(found)} learnt conflicts" + (
                     f" and {blocked_plans} blocked plans prove it)" if blocked_plans else " prove it)"
                 )
+                if wide:
+                    proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
+                        2 * FINGER_INNER, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
+                    )
             return result(status, f"{status.value}: {why}{proof}", it=it)
         if n0 is None:
             n0 = len(actions)
@@ -209,7 +228,7 @@ def plan_gnpp(
         if values is None:  # every conflict found was refuted: no proof either way, block this plan
             forbidden.append(_whole(states))
             blocked_plans += 1
-            reasons.append("conflicts refuted by other starts")
+            reasons.append("conflicts refuted by other starts, or too large to check")
             continue
         laid = phases_of(lib, ik, actions, values)
         if isinstance(laid, str):
@@ -252,11 +271,20 @@ def _checked_conflict(
         conflict, values = find_conflict(check, graph, opts)
         if conflict is None:
             return None, values, k
+        cap = FILTER_MAX if any(f.robot for f in conflict.factors) else FILTER_MAX_NO_ROBOT
+        if opts.convergence and len(conflict.factors) > cap:
+            # not cut down to a minimal one (too large): checking it from other starts costs several of
+            # the slowest solves, and it forbids little more than this plan; the plan is blocked
+            # instead (no proof claimed: a blocked plan is counted apart from learnt conflicts)
+            log.info("conflict of %d factors not minimised: the plan is blocked", len(conflict.factors))
+            return None, None, k
         point = check.solver.refute(conflict.factors, check.guess, seed=k)
         if point is None:
             return conflict, None, k
         log.info("conflict refuted by another start: %s", conflict)
         check.guess.update(point)
+        check.forget_infeasible()
+        check.proven_feasible(conflict.factors, point)
         if check.db is not None:
             check.db.correct(conflict.factors)
     return None, None, retries + 1

@@ -45,6 +45,10 @@ __all__ = ["INITIAL", "Factor", "Var", "add_flags", "factors_of", "parents"]
 
 INITIAL: Atom = ("initial-state",)
 COLLISION = ("ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
+#: the collision factors the "No Col" relaxation removes: those between two variables, which make a time
+#: step's graph dense (paper Sec. VIII-B). ColFix (one arm against the fixed world, with the PR2's
+#: pan/wrist limits) has one variable: it connects nothing, and it is what makes most reach conflicts
+COUPLING_COLLISION = ("ColAA", "ColAO", "ColHO", "ColOO")
 TIME = ("Equal",)
 
 
@@ -81,6 +85,11 @@ class Factor:
     @property
     def collision(self) -> bool:
         return self.kind in COLLISION
+
+    @property
+    def coupling(self) -> bool:
+        """A collision factor between two variables (see ``COUPLING_COLLISION``)."""
+        return self.kind in COUPLING_COLLISION
 
     @property
     def time_consistency(self) -> bool:
