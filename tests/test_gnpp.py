@@ -266,11 +266,17 @@ def test_obstacle_tower_is_planned_not_declared_infeasible():
 
 
 def test_objects_wider_than_the_open_gripper_are_not_picked(pr2):
-    """hanoi_pr2's 8 and 10 cm discs do not fit between the open PR2 fingertips (7.5 cm): every plan
+    """Hanoi with 8 and 10 cm discs: they do not fit between the open PR2 fingertips (7.5 cm): every plan
     that lets one go fails the replay (the fingers touch it lifting off), so none is tried: the task
     ends infeasible at once, saying why, without an NLP."""
-    scene = load_scene(SCENES / "hanoi_pr2.toml")
-    assert FactorLib(pr2, scene).too_wide() == {"d_large": 0.1, "d_mid": 0.08}
+    hanoi = load_scene(SCENES / "hanoi_pr2.toml")
+    wider = {"d_large": 0.1, "d_mid": 0.08}
+    scene = dataclasses.replace(hanoi, objects=tuple(
+        dataclasses.replace(o, size=(wider[o.name], wider[o.name], o.size[2])) if o.name in wider else o
+        for o in hanoi.objects
+    ))
+    assert FactorLib(pr2, hanoi).too_wide() == {}
+    assert FactorLib(pr2, scene).too_wide() == wider
     res = plan_gnpp(scene, "gnpp_trn", timeout_s=30.0)
     assert res.status is GnppStatus.INFEASIBLE
     assert "wider than the open gripper" in res.plan.reason and "d_mid" in res.plan.reason
