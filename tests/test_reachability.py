@@ -82,6 +82,38 @@ def test_a_path_never_goes_through_the_wall(wall):
     assert res.path[:, 1].min() < -0.7 - 0.2 or res.path[:, 1].max() > 1.7 + 0.2
 
 
+def test_an_edge_is_free_exactly_when_its_fixed_and_changed_parts_are(wall):
+    """The split check the planner uses while objects stand or one is held (graph verdict + the rest)
+    agrees with the whole check."""
+    from rlgp_exec.scene.geometry import object_box
+
+    scene, _model, graph, _, checker, _ = wall
+    box = object_box(scene.objects[0])
+    others = [
+        replace(box, T=T) for T in (box.T, np.array([[1, 0, 0, 0.0], [0, 1, 0, 0.3], [0, 0, 1, 0.5], [0, 0, 0, 1]]))
+    ]
+    edges = list(graph.G.edges)[:40]
+    try:
+        for held in (False, True):
+            checker.set_objects(others)
+            if held:
+                checker.attach(
+                    np.array([0.05, 0.05, 0.08]),
+                    np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.04], [0, 0, 0, 1.0]]),
+                )
+            whole = [checker.edge_collides(graph.Q[i], graph.Q[j]) for i, j in edges]
+            split = [
+                checker.edge_collides(graph.Q[i], graph.Q[j], part="fixed")
+                or checker.edge_collides(graph.Q[i], graph.Q[j], part="changed")
+                for i, j in edges
+            ]
+            assert whole == split
+            assert any(whole) and not all(whole)
+    finally:
+        checker.detach()
+        checker.set_objects([])
+
+
 def test_the_library_answers_both_directions(wall):
     _, _, graph, _, _, planner = wall
     a, b = graph.alive[5], graph.alive[40]

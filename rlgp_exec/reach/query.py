@@ -112,24 +112,41 @@ class ReachabilityPlanner:
 
     # ------------------------------------------------------------------ checks
     def edge_valid(self, i: int, j: int) -> bool:
-        """Check an edge once (lazily); remember the verdict in the graph. While carrying an object the
-        verdict holds for this query only: an edge too tight for the object may be fine for the hand (and the
-        same while a drawer is out)."""
-        if self.in_collision.attached is not None or self.in_collision.world_changed:
+        """Check an edge once (lazily); remember the verdict in the graph. While carrying an object, with
+        objects as obstacles or a drawer out, the verdict holds for this query only (an edge too tight for
+        the object may be fine for the hand), but it is split (``WorldChecker`` parts): the graph's own
+        verdict (fixtures, drawers closed, self) is looked up or, with the drawers closed, checked and
+        remembered, and only the rest (objects, open drawers, the held object) is checked per query."""
+        checker = self.in_collision
+        if checker.attached is not None or checker.world_changed:
             key = (min(i, j), max(i, j))
             if key not in self._carry_verdicts:
                 self.counters["edge_checks"] += 1
-                self._carry_verdicts[key] = not self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j])
+                closed = all(d == 0.0 for d in checker.openings.values())
+                if self.g.G.edges[i, j]["checked"]:
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j], part="changed")
+                elif closed:
+                    ok = self._graph_verdict(i, j)
+                    if not ok:
+                        return False  # removed from the graph: no verdict to keep for this query
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j], part="changed")
+                else:
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j])
+                self._carry_verdicts[key] = ok
             return self._carry_verdicts[key]
-        data = self.g.G.edges[i, j]
-        if data["checked"]:
+        if self.g.G.edges[i, j]["checked"]:
             return True
         self.counters["edge_checks"] += 1
-        if self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j]):
+        return self._graph_verdict(i, j)
+
+    def _graph_verdict(self, i: int, j: int) -> bool:
+        """The graph's verdict on an unchecked edge (fixtures, drawers closed, self-collisions): a free
+        edge is marked checked, a colliding one removed."""
+        if self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j], part="fixed"):
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
             return False
-        data["checked"] = True
+        self.g.G.edges[i, j]["checked"] = True
         return True
 
     def _weight(self, u: int, v: int, d: dict) -> float | None:
