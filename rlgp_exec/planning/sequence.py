@@ -32,6 +32,7 @@ from rlgp_exec.scene.geometry import object_box
 __all__ = ["APPROACH", "SequenceGeometry"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
+RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
 
 log = logging.getLogger(__name__)
 
@@ -111,21 +112,57 @@ class SequenceGeometry:
         return None if not chain or self.checker(chain[-1]) else chain
 
     def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
-        """The transport posture: raise the lift to the top, drive, lower it (three straight motions,
-        each checked exactly, with the held object if there is one); None if any is blocked."""
-        for lift in ("arm_lift_joint", "torso_lift_joint"):
-            if lift in self.model.joint_names:
-                i = self.model.index(lift)
-                top = self.model.limits.upper[i] - 0.01
-                a, b = q1.copy(), q2.copy()
-                a[i], b[i] = max(a[i], top), max(b[i], top)
-                path = np.array([q1, a, b, q2])
-                if self.checker(a) or self.checker(b):
-                    return None
-                if any(self.checker.edge_collides(u, v) for u, v in itertools.pairwise(path)):
-                    return None
-                return path
+        """The transport posture: raise the lift to the top, move to the other end's posture, lower it;
+        None if every variant is blocked. Variants, each of straight motions checked exactly (with the
+        held object, if there is one), tried in order: drive and move the arm at once; back off RETREAT
+        (the base straight away from the nearest fixture footprint, heading kept), drive and
+        move the arm, come in to the other end the same way; move the arm first, then drive; drive
+        first, then move the arm; fold the arm (the home posture), drive, unfold. A verdict on a
+        configuration or motion that variants share is computed once."""
+        lifts = [n for n in ("arm_lift_joint", "torso_lift_joint") if n in self.model.joint_names]
+        if not lifts:
+            return None
+        i = self.model.index(lifts[0])
+        top = self.model.limits.upper[i] - 0.01
+        a, b = q1.copy(), q2.copy()
+        a[i], b[i] = max(a[i], top), max(b[i], top)
+        if self.checker(a) or self.checker(b):
+            return None
+        arm = np.array([j for j in self.model.group(self.model.manipulator().group) if j != i], dtype=int)
+        arm_first, drive_first = a.copy(), b.copy()
+        arm_first[arm], drive_first[arm] = b[arm], a[arm]
+        fold_a, fold_b = a.copy(), b.copy()
+        fold_a[arm] = fold_b[arm] = self.model.home()[arm]
+        back_a, back_b = a.copy(), b.copy()
+        for q in (back_a, back_b):
+            q[:2] += RETREAT * self._away(q[:2])
+        verdicts: dict[bytes, bool] = {}  # configuration or motion -> free
+        for mid in ([a, b], [a, back_a, back_b, b], [a, arm_first, b], [a, drive_first, b], [a, fold_a, fold_b, b]):
+            path = [q1, *mid, q2]
+            if all(self._free(verdicts, q) for q in mid[1:-1]) and all(
+                self._free(verdicts, u, v) for u, v in itertools.pairwise(path)
+            ):
+                return np.array(path)
         return None
+
+    def _away(self, xy: FloatArray) -> FloatArray:
+        """Unit vector (2,) in the world plane from the nearest point of the nearest fixture footprint
+        to ``xy`` [m] (zero if there is no fixture or xy is inside one)."""
+        best, out = np.inf, np.zeros(2)
+        for fx in self.scene.fixtures:
+            local = fx.T[:2, :2].T @ (xy - fx.T[:2, 3])
+            nearest = np.clip(local, -np.asarray(fx.size[:2]) / 2, np.asarray(fx.size[:2]) / 2)
+            d = float(np.linalg.norm(local - nearest))
+            if d < best:
+                best, out = d, (fx.T[:2, :2] @ (local - nearest)) / d if d > 1e-9 else np.zeros(2)
+        return out
+
+    def _free(self, verdicts: dict[bytes, bool], q: FloatArray, q_to: FloatArray | None = None) -> bool:
+        """q is collision-free (or, with ``q_to``, the straight motion q -> q_to is), remembered in ``verdicts``."""
+        key = q.tobytes() + (b"" if q_to is None else q_to.tobytes())
+        if key not in verdicts:
+            verdicts[key] = not (self.checker(q) if q_to is None else self.checker.edge_collides(q, q_to))
+        return verdicts[key]
 
     def plan_actions(
         self,
