@@ -62,6 +62,7 @@ class SequenceGeometry:
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
+        self._nlp_cache: dict = {}  # the keyframe NLP of the sequence under way (its tilts share it)
 
     def close(self) -> None:
         self.checker.close()
@@ -270,6 +271,7 @@ class SequenceGeometry:
             lift_room=APPROACH,
             seeds=self._graph_seeds,
             deadline=deadline,
+            cache=self._nlp_cache,
         )
         empty = np.zeros((0, self.model.nq))
 
