@@ -180,6 +180,40 @@ def test_ompl_moves_every_joint_that_differs_and_accepts_an_end_a_hair_past_a_li
     assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
 
 
+def test_ompl_reaches_an_end_closer_to_a_fixture_than_its_own_states_keep(wall):
+    """A grasp's approach may stand nearer a fixture than OMPL's clearance (3x the graph's): OMPL plans
+    to a nudged configuration nearby and the path still ends exactly at the given one, every motion
+    certified."""
+    from rlgp_exec.reach.checker import CLEARANCE
+    from rlgp_exec.reach.ompl_plan import OMPL_CLEARANCE
+
+    _, _, graph, _, checker, _ = wall
+    left = [i for i in graph.alive if graph.X[i][0] < -0.4]
+    q2 = None
+    for i in sorted(graph.alive, key=lambda i: -graph.X[i][0]):  # nodes right of the wall, nearest first
+        if graph.X[i][0] < 0.2:
+            continue
+        q = graph.Q[i].copy()
+        for _ in range(300):  # the base towards the wall, 2 mm at a time
+            d = checker.distance(q)
+            if d < CLEARANCE + 0.002:
+                break
+            if d < OMPL_CLEARANCE and not checker(q):
+                q2 = q
+                break
+            q = q.copy()
+            q[0] -= 0.002
+        if q2 is not None:
+            break
+    assert q2 is not None
+    path = plan_ompl(
+        checker, graph.plan_idx, graph.Q[left[0]], q2, np.array([-2.0, -2.0]), np.array([2.0, 2.0]), timeout=5.0
+    )
+    assert path is not None
+    np.testing.assert_allclose(path[-1], q2, atol=1e-9)
+    assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+
+
 def test_a_saved_graph_reloads_identical_and_bad_files_are_refused(wall, tmp_path):
     scene, model, graph, _, _, _ = wall
     meta = graph_meta(model, scene, model.manipulator().name, PARAMS)
