@@ -250,8 +250,8 @@ class SequenceGeometry:
         from rlgp_exec.reach.ompl_plan import plan_ompl
 
         arm = np.array(self.model.group(self.model.manipulator().group), dtype=int)
-        rigid = [*arm, *(self.model.index(n) for n in ("torso_lift_joint",) if n in self.model.joint_names)]
-        rigid = np.array(sorted(set(rigid)), dtype=int)
+        torso = [self.model.index(n) for n in ("torso_lift_joint",) if n in self.model.joint_names]
+        rigid = np.array(sorted({*arm.tolist(), *torso}), dtype=int)
         postures = [q2[rigid]]
         if self.checker.attached is None:
             home = self.model.home()[rigid]

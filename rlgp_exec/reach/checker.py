@@ -192,8 +192,8 @@ class WorldChecker:
         if not pairs:
             return False
         dq = self.model.limits.difference(q2, q1)
-        held = self.attached is not None and part != "fixed"
-        radii = self.radii + self.attached[2] if held else self.radii  # the object reaches further
+        extra = self.attached[2] if self.attached is not None and part != "fixed" else 0.0
+        radii = self.radii + extra  # a held object reaches further
         bound = float(np.abs(dq) @ radii)  # max displacement of any robot (or held) point over the edge [m]
         arm_len = float(np.abs(dq[self.arm]).max()) if self.arm.size else 0.0
         n_self = max(1, math.ceil(arm_len / SELF_STEP)) if part != "changed" else 0

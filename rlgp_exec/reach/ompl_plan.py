@@ -94,15 +94,14 @@ def plan_ompl(
         q = full(s)
         return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
 
-    ends = [_nudged(checker, q, idx, lo, hi) for q in (q1, q2)]
-    if ends[0] is None or ends[1] is None:  # OMPL would spend its whole timeout on it
+    s1, s2 = _nudged(checker, q1, idx, lo, hi), _nudged(checker, q2, idx, lo, hi)
+    if s1 is None or s2 is None:  # OMPL would spend its whole timeout on it
         log.info(
             "OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding), nor any nearby",
-            "start" if ends[0] is None else "goal",
+            "start" if s1 is None else "goal",
             OMPL_CLEARANCE,
         )
         return None
-    s1, s2 = ends
     ss.setStateValidityChecker(valid)
     start, goal = space.allocState(), space.allocState()
     for k, i in enumerate(idx):
