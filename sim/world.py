@@ -34,10 +34,11 @@ DRAWER_MASS = 1.0  # [kg]
 
 
 def matrix_to_pose(T: FloatArray) -> tuple[list[float], list[float]]:
-    """PyBullet (position, quaternion xyzw) of T (4, 4)."""
-    from scipy.spatial.transform import Rotation
+    """PyBullet (position, quaternion xyzw) of T (4, 4) (a rotation: no orthogonalisation; the replay
+    calls this at every step for a held object)."""
+    from rlgp_exec.robot.pybullet_body import quat_xyzw
 
-    return T[:3, 3].tolist(), Rotation.from_matrix(T[:3, :3]).as_quat().tolist()
+    return T[:3, 3].tolist(), quat_xyzw(T[:3, :3])
 
 
 @dataclass(frozen=True)

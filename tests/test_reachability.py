@@ -82,6 +82,38 @@ def test_a_path_never_goes_through_the_wall(wall):
     assert res.path[:, 1].min() < -0.7 - 0.2 or res.path[:, 1].max() > 1.7 + 0.2
 
 
+def test_an_edge_is_free_exactly_when_its_fixed_and_changed_parts_are(wall):
+    """The split check the planner uses while objects stand or one is held (graph verdict + the rest)
+    agrees with the whole check."""
+    from rlgp_exec.scene.geometry import object_box
+
+    scene, _model, graph, _, checker, _ = wall
+    box = object_box(scene.objects[0])
+    others = [
+        replace(box, T=T) for T in (box.T, np.array([[1, 0, 0, 0.0], [0, 1, 0, 0.3], [0, 0, 1, 0.5], [0, 0, 0, 1]]))
+    ]
+    edges = list(graph.G.edges)[:40]
+    try:
+        for held in (False, True):
+            checker.set_objects(others)
+            if held:
+                checker.attach(
+                    np.array([0.05, 0.05, 0.08]),
+                    np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.04], [0, 0, 0, 1.0]]),
+                )
+            whole = [checker.edge_collides(graph.Q[i], graph.Q[j]) for i, j in edges]
+            split = [
+                checker.edge_collides(graph.Q[i], graph.Q[j], part="fixed")
+                or checker.edge_collides(graph.Q[i], graph.Q[j], part="changed")
+                for i, j in edges
+            ]
+            assert whole == split
+            assert any(whole) and not all(whole)
+    finally:
+        checker.detach()
+        checker.set_objects([])
+
+
 def test_the_library_answers_both_directions(wall):
     _, _, graph, _, _, planner = wall
     a, b = graph.alive[5], graph.alive[40]
@@ -144,6 +176,40 @@ def test_ompl_moves_every_joint_that_differs_and_accepts_an_end_a_hair_past_a_li
     path = plan_ompl(checker, graph.plan_idx, q1, q2, np.array([-2.0, -2.0]), np.array([2.0, 2.0]), timeout=5.0)
     assert path is not None
     np.testing.assert_allclose(path[0], q1, atol=1e-9)
+    np.testing.assert_allclose(path[-1], q2, atol=1e-9)
+    assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+
+
+def test_ompl_reaches_an_end_closer_to_a_fixture_than_its_own_states_keep(wall):
+    """A grasp's approach may stand nearer a fixture than OMPL's clearance (3x the graph's): OMPL plans
+    to a nudged configuration nearby and the path still ends exactly at the given one, every motion
+    certified."""
+    from rlgp_exec.reach.checker import CLEARANCE
+    from rlgp_exec.reach.ompl_plan import OMPL_CLEARANCE
+
+    _, _, graph, _, checker, _ = wall
+    left = [i for i in graph.alive if graph.X[i][0] < -0.4]
+    q2 = None
+    for i in sorted(graph.alive, key=lambda i: -graph.X[i][0]):  # nodes right of the wall, nearest first
+        if graph.X[i][0] < 0.2:
+            continue
+        q = graph.Q[i].copy()
+        for _ in range(300):  # the base towards the wall, 2 mm at a time
+            d = checker.distance(q)
+            if d < CLEARANCE + 0.002:
+                break
+            if d < OMPL_CLEARANCE and not checker(q):
+                q2 = q
+                break
+            q = q.copy()
+            q[0] -= 0.002
+        if q2 is not None:
+            break
+    assert q2 is not None
+    path = plan_ompl(
+        checker, graph.plan_idx, graph.Q[left[0]], q2, np.array([-2.0, -2.0]), np.array([2.0, 2.0]), timeout=5.0
+    )
+    assert path is not None
     np.testing.assert_allclose(path[-1], q2, atol=1e-9)
     assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
 

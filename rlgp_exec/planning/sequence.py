@@ -32,6 +32,8 @@ from rlgp_exec.scene.geometry import object_box
 __all__ = ["APPROACH", "SequenceGeometry"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
+DRIVE_ROUND_TIMEOUT = 2.0  # [s] OMPL's time for a base-only path round an obstacle (the last resort)
+RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +63,7 @@ class SequenceGeometry:
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
+        self._nlp_cache: dict = {}  # the keyframe NLP of the sequence under way (its tilts share it)
 
     def close(self) -> None:
         self.checker.close()
@@ -111,21 +114,61 @@ class SequenceGeometry:
         return None if not chain or self.checker(chain[-1]) else chain
 
     def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
-        """The transport posture: raise the lift to the top, drive, lower it (three straight motions,
-        each checked exactly, with the held object if there is one); None if any is blocked."""
-        for lift in ("arm_lift_joint", "torso_lift_joint"):
-            if lift in self.model.joint_names:
-                i = self.model.index(lift)
-                top = self.model.limits.upper[i] - 0.01
-                a, b = q1.copy(), q2.copy()
-                a[i], b[i] = max(a[i], top), max(b[i], top)
-                path = np.array([q1, a, b, q2])
-                if self.checker(a) or self.checker(b):
-                    return None
-                if any(self.checker.edge_collides(u, v) for u, v in itertools.pairwise(path)):
-                    return None
-                return path
+        """The transport posture: raise the lift to the top, move to the other end's posture, lower it;
+        None if every variant is blocked. Variants, each of straight motions checked exactly (with the
+        held object, if there is one), tried in order: drive and move the arm at once; back off RETREAT
+        (the base straight away from the nearest fixture footprint, heading kept), drive and
+        move the arm, come in to the other end the same way; move the arm first, then drive; drive
+        first, then move the arm; with an empty hand, fold the arm (the home posture), drive, unfold
+        (the checks do not cover a held object against the robot's own body). A verdict on a
+        configuration or motion that variants share is computed once."""
+        lifts = [n for n in ("arm_lift_joint", "torso_lift_joint") if n in self.model.joint_names]
+        if not lifts:
+            return None
+        i = self.model.index(lifts[0])
+        top = self.model.limits.upper[i] - 0.01
+        a, b = q1.copy(), q2.copy()
+        a[i], b[i] = max(a[i], top), max(b[i], top)
+        if self.checker(a) or self.checker(b):
+            return None
+        arm = np.array([j for j in self.model.group(self.model.manipulator().group) if j != i], dtype=int)
+        arm_first, drive_first = a.copy(), b.copy()
+        arm_first[arm], drive_first[arm] = b[arm], a[arm]
+        fold_a, fold_b = a.copy(), b.copy()
+        fold_a[arm] = fold_b[arm] = self.model.home()[arm]
+        back_a, back_b = a.copy(), b.copy()
+        for q in (back_a, back_b):
+            q[:2] += RETREAT * self._away(q[:2])
+        verdicts: dict[bytes, bool] = {}  # configuration or motion -> free
+        variants = [[a, b], [a, back_a, back_b, b], [a, arm_first, b], [a, drive_first, b]]
+        if self.checker.attached is None:  # folded, a held object could reach into the body (unchecked)
+            variants.append([a, fold_a, fold_b, b])
+        for mid in variants:
+            path = [q1, *mid, q2]
+            if all(self._free(verdicts, q) for q in mid[1:-1]) and all(
+                self._free(verdicts, u, v) for u, v in itertools.pairwise(path)
+            ):
+                return np.array(path)
         return None
+
+    def _away(self, xy: FloatArray) -> FloatArray:
+        """Unit vector (2,) in the world plane from the nearest point of the nearest fixture footprint
+        to ``xy`` [m] (zero if there is no fixture or xy is inside one)."""
+        best, out = np.inf, np.zeros(2)
+        for fx in self.scene.fixtures:
+            local = fx.T[:2, :2].T @ (xy - fx.T[:2, 3])
+            nearest = np.clip(local, -np.asarray(fx.size[:2]) / 2, np.asarray(fx.size[:2]) / 2)
+            d = float(np.linalg.norm(local - nearest))
+            if d < best:
+                best, out = d, (fx.T[:2, :2] @ (local - nearest)) / d if d > 1e-9 else np.zeros(2)
+        return out
+
+    def _free(self, verdicts: dict[bytes, bool], q: FloatArray, q_to: FloatArray | None = None) -> bool:
+        """q is collision-free (or, with ``q_to``, the straight motion q -> q_to is), remembered in ``verdicts``."""
+        key = q.tobytes() + (b"" if q_to is None else q_to.tobytes())
+        if key not in verdicts:
+            verdicts[key] = not (self.checker(q) if q_to is None else self.checker.edge_collides(q, q_to))
+        return verdicts[key]
 
     def plan_actions(
         self,
@@ -191,10 +234,60 @@ class SequenceGeometry:
                 return transport
             res = self.rg.query(x1, x2, q1=q_prev, q2=q_pre)
             if not res.ok:
-                return f"{res.status.value}: {res.reason}"
+                around = self._drive_round(q_prev, q_pre)
+                return around if around is not None else f"{res.status.value}: {res.reason}"
             return self._shortcut(res.path)
         finally:
             self.rg.carrying(None)
+
+    def _drive_round(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
+        """The last resort when the graph finds no path (e.g. round a cabinet to its far side): the
+        arm (and a torso outside it, raised to the top) takes a posture at q1's base, OMPL plans the
+        base alone (3 DoF, the posture rigid: a held object keeps its place relative to the robot) to
+        q2's base, and the arm takes q2's posture; each motion checked exactly. Postures tried: q2's
+        own; folded (the home posture, empty hand only: the checks do not cover a held object against
+        the robot's body); q1's with the lift up. None if all fail."""
+        from rlgp_exec.reach.ompl_plan import plan_ompl
+
+        arm = np.array(self.model.group(self.model.manipulator().group), dtype=int)
+        torso = [self.model.index(n) for n in ("torso_lift_joint",) if n in self.model.joint_names]
+        rigid = np.array(sorted({*arm.tolist(), *torso}), dtype=int)
+        postures = [q2[rigid]]
+        if self.checker.attached is None:
+            home = self.model.home()[rigid]
+            for i, j in enumerate(rigid):
+                if j not in arm:  # the torso up
+                    home[i] = self.model.limits.upper[j] - 0.01
+            postures.append(home)
+        up = q1[rigid].copy()
+        for i, j in enumerate(rigid):
+            if self.model.joint_names[j].endswith("lift_joint"):
+                up[i] = max(up[i], self.model.limits.upper[j] - 0.01)
+        postures.append(up)
+        X = self.graph.X[self.graph.alive]
+        lo_xy, hi_xy = X[:, :2].min(axis=0) - 1.0, X[:, :2].max(axis=0) + 1.0
+        verdicts: dict[bytes, bool] = {}
+        for posture in postures:
+            p1, p2 = q1.copy(), q2.copy()
+            p1[rigid], p2[rigid] = posture, posture
+            if not all(self._free(verdicts, q) for q in (p1, p2)):
+                continue
+            if not (self._free(verdicts, q1, p1) and self._free(verdicts, p2, q2)):
+                continue
+            if self._free(verdicts, p1, p2):
+                return np.array([q1, p1, p2, q2])
+            base = plan_ompl(
+                self.checker,
+                np.array(self.model.group("base")),
+                p1,
+                p2,
+                lo_xy,
+                hi_xy,
+                timeout=DRIVE_ROUND_TIMEOUT,
+            )
+            if base is not None:
+                return np.vstack([q1[None], base, q2[None]])
+        return None
 
     def _shortcut(self, path: FloatArray, max_checks: int = 24) -> FloatArray:
         """Greedy shortcuts of a guided path: from each kept waypoint, the farthest later one reachable
@@ -233,6 +326,7 @@ class SequenceGeometry:
             lift_room=APPROACH,
             seeds=self._graph_seeds,
             deadline=deadline,
+            cache=self._nlp_cache,
         )
         empty = np.zeros((0, self.model.nq))
 

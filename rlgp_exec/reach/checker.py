@@ -8,22 +8,31 @@ moves uses a radius per joint (1 m per metre of a prismatic or base joint; the r
 base yaw; the arm's length for arm joints). Between samples the robot therefore cannot touch a
 fixture: the check is exact for the continuous motion, not a sampled approximation. Self-collision,
 which the bound does not cover, is sampled every ``SELF_STEP`` [rad] of arm motion.
+
+A check can be split by ``part``: ``"fixed"`` is the robot against the fixtures and the cabinets with
+their drawers closed, and itself (what the reachability graph's edge verdicts hold for);
+``"changed"`` is everything else (the robot against the movable objects and any cabinet whose drawer
+is out, a held object against everything). A motion is free of everything exactly when it is free
+of both, so a query that trusts the graph's verdict for the first part checks only the second.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Literal
 
 import numpy as np
 import pybullet as p
-from scipy.spatial.transform import Rotation
 
 from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.robot.pybullet_body import quat_xyzw
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["CLEARANCE", "WorldChecker"]
+__all__ = ["CLEARANCE", "Part", "WorldChecker"]
+
+Part = Literal["all", "fixed", "changed"]
 
 CLEARANCE = 0.005  # [m] between the robot and the fixtures at every checked configuration
 SELF_TOLERANCE = 1e-3  # [m] penetration allowed between robot links (touching neighbours)
@@ -65,7 +74,9 @@ class WorldChecker:
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
-        self.openings = {name: 0.0 for name in self.world.cabinets}  # the drawers, as the graph was built
+        # the drawers as they are in this world (a replan's start may have one out; the graph's verdicts
+        # hold for them closed)
+        self.openings = {name: self.world.drawer_opening(name) for name in self.world.cabinets}
         self.knob: int | None = None  # a cabinet body whose drawer the fingers may touch (the hand on its knob)
         hand = set(self.model.manipulator().links)
         self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
@@ -85,7 +96,7 @@ class WorldChecker:
             col = p.createCollisionShape(
                 p.GEOM_BOX, halfExtents=[float(v) / 2 for v in box.size], physicsClientId=self.client
             )
-            pos, quat = box.T[:3, 3].tolist(), Rotation.from_matrix(box.T[:3, :3]).as_quat().tolist()
+            pos, quat = box.T[:3, 3].tolist(), quat_xyzw(box.T[:3, :3])
             self._object_bodies.append(p.createMultiBody(0.0, col, -1, pos, quat, physicsClientId=self.client))
         self.bodies = [*self._fixed_bodies, *self._object_bodies]
 
@@ -117,26 +128,42 @@ class WorldChecker:
             p.removeBody(self.attached[0], physicsClientId=self.client)
             self.attached = None
 
-    def distance(self, q: FloatArray) -> float:
-        """Smallest distance [m] from the robot (and a held object) to the fixtures (capped at LOOKAHEAD)."""
+    def _pairs(self, part: Part) -> list[tuple[int, int]]:
+        """(moving body, obstacle body) pairs measured by a check of ``part`` (module docstring)."""
+        robot = self.robot.id
+        if part == "all":
+            robot_vs = self.bodies
+        else:
+            out = {c.body for name, c in self.world.cabinets.items() if self.openings.get(name, 0.0) != 0.0}
+            if part == "fixed":
+                robot_vs = [b for b in self._fixed_bodies if b not in out]
+            else:
+                robot_vs = [*(b for b in self._fixed_bodies if b in out), *self._object_bodies]
+        pairs = [(robot, b) for b in robot_vs]
+        if self.attached is not None and part != "fixed":
+            pairs += [(self.attached[0], b) for b in self.bodies]
+        return pairs
+
+    def distance(self, q: FloatArray, part: Part = "all") -> float:
+        """Smallest distance [m] from the robot (and a held object) to the fixtures and obstacles (capped
+        at LOOKAHEAD); ``part`` restricts the pairs measured (module docstring)."""
+        return self._distance(q, self._pairs(part))
+
+    def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
         self.robot.set_q(q, only_changed=True)
-        bodies = [self.robot.id]
-        if self.attached is not None:
+        if self.attached is not None and any(a == self.attached[0] for a, _ in pairs):
             body, T_to, _ = self.attached
             T = self.model.fk(q, self.tool) @ T_to
-            from scipy.spatial.transform import Rotation
-
             p.resetBasePositionAndOrientation(
-                body, T[:3, 3].tolist(), Rotation.from_matrix(T[:3, :3]).as_quat().tolist(), physicsClientId=self.client
+                body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
             )
-            bodies.append(body)
         d = LOOKAHEAD
-        for a in bodies:
-            for b in self.bodies:
-                for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
-                    if b == self.knob and a == self.robot.id and c[3] in self._fingers and c[4] == 0:
-                        continue  # the fingers round the knob
-                    d = min(d, float(c[8]))
+        robot = self.robot.id
+        for a, b in pairs:
+            for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
+                if b == self.knob and a == robot and c[3] in self._fingers and c[4] == 0:
+                    continue  # the fingers round the knob
+                d = min(d, float(c[8]))
         return d
 
     def self_collision(self, q: FloatArray) -> bool:
@@ -157,22 +184,32 @@ class WorldChecker:
         self.calls += 1
         return self.distance(q) < 0.0 or self.self_collision(q)
 
-    def edge_collides(self, q1: FloatArray, q2: FloatArray) -> bool:
+    def edge_collides(self, q1: FloatArray, q2: FloatArray, part: Part = "all") -> bool:
         """True when the straight motion q1 -> q2 (yaw the short way) comes within CLEARANCE of a
-        fixture or self-collides."""
+        fixture or self-collides; ``part`` restricts what is checked (module docstring: "changed" has
+        no self-collision samples, "fixed" no objects)."""
+        pairs = self._pairs(part)
+        if not pairs:
+            return False
         dq = self.model.limits.difference(q2, q1)
-        radii = self.radii if self.attached is None else self.radii + self.attached[2]  # the object reaches further
+        extra = self.attached[2] if self.attached is not None and part != "fixed" else 0.0
+        radii = self.radii + extra  # a held object reaches further
         bound = float(np.abs(dq) @ radii)  # max displacement of any robot (or held) point over the edge [m]
         arm_len = float(np.abs(dq[self.arm]).max()) if self.arm.size else 0.0
-        n_self = max(1, math.ceil(arm_len / SELF_STEP))
+        n_self = max(1, math.ceil(arm_len / SELF_STEP)) if part != "changed" else 0
+        # the middle first: closer than the clearance there, the sweep below would stop there too (it
+        # cannot step past a configuration that close), so the answer is the same without the sweep
+        self.calls += 1
+        if self._distance(q1 + 0.5 * dq, pairs) < self.clearance:
+            return True
         s, last_self = 0.0, -1.0
         while True:
             q = q1 + s * dq
             self.calls += 1
-            d = self.distance(q)
+            d = self._distance(q, pairs)
             if d < self.clearance + MIN_ADVANCE * (s < 1.0):
                 return True
-            if s - last_self >= 1.0 / n_self or s >= 1.0:
+            if n_self and (s - last_self >= 1.0 / n_self or s >= 1.0):
                 if self.self_collision(q):
                     return True
                 last_self = s

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -29,6 +29,7 @@ __all__ = ["IKResult", "ReachIK", "arm_spheres", "base_circles"]
 
 log = logging.getLogger(__name__)
 POS_TOL = 2e-3  # [m] a node's q must put the tool within this of x0
+MEMO_SIZE = 20_000  # IK answers remembered per solver (the same target and start recur within a plan)
 W_REG = 1e-4  # weight of the arm posture regulariser (small: it must not pull the tool off x0)
 
 
@@ -140,6 +141,7 @@ class ReachIK:
         T_home = model.fk(model.home(), self.tool)  # the tool's position in the base frame at home
         self.reach_xy = T_home[:2, 3].copy()
         self.reach = float(np.linalg.norm(self.reach_xy))
+        self._memo: dict[bytes, IKResult] = {}
 
     # ------------------------------------------------------------------ helpers
     def inside_fixture(self, x0: FloatArray, margin: float = 0.01) -> str | None:
@@ -171,6 +173,19 @@ class ReachIK:
         the base where z_init has it."""
         x0 = np.asarray(x0, float)
         z0 = np.clip(np.asarray(z_init, float), self.lo, self.hi)
+        # IPOPT is deterministic: the same target from the same start has the same answer (keyframe
+        # starts repeat across a sequence's tilts and across candidates sharing an action)
+        key = x0.tobytes() + z0.tobytes()
+        hit = self._memo.get(key)
+        if hit is not None:
+            return replace(hit, q=hit.q.copy())
+        out = self._solve(x0, z0)
+        if len(self._memo) < MEMO_SIZE:
+            self._memo[key] = replace(out, q=out.q.copy())
+        return out
+
+    def _solve(self, x0: FloatArray, z0: FloatArray) -> IKResult:
+        """One IPOPT run of Eq. 2 (``solve`` without the memo)."""
         res = self._solver(
             x0=z0,
             p=np.r_[x0, self.home_arm],

@@ -3,7 +3,10 @@
 Plans over the graph's planning joints (base x, y, yaw and the arm; every other joint fixed) with
 RRTConnect (or PRM) on the same PyBullet validity check the graph uses. OMPL's own motion check is
 sampled, so every segment of the simplified result is re-checked with the exact edge check of
-:class:`~rlgp_exec.reach.checker.WorldChecker` before the path is returned.
+:class:`~rlgp_exec.reach.checker.WorldChecker` before the path is returned. OMPL's states keep three
+times the graph's clearance; an end closer than that (a grasp's approach next to a cabinet) is
+replaced by a configuration nearby that has it and that the end reaches by a straight motion passing
+the exact check (that motion is part of the returned path).
 """
 
 from __future__ import annotations
@@ -23,7 +26,8 @@ log = logging.getLogger(__name__)
 OMPL_PLANNERS = ("RRTConnect", "PRM")
 OMPL_CLEARANCE = 3 * CLEARANCE  # [m] required of OMPL's states
 REDUCE_STEPS = 20  # OMPL vertex-reduction attempts on a found path
-END_BALL = 0.25  # [m or rad, largest joint difference] round each end: OMPL's states need only CLEARANCE there
+NUDGE_SIGMAS = (0.01, 0.02, 0.04)  # [m or rad] an end OMPL refuses is moved by Gaussian steps this wide
+NUDGE_TRIES = 8  # samples per sigma
 
 
 _SEEDED: list[bool] = []
@@ -86,25 +90,22 @@ def plan_ompl(
         return q
 
     def valid(s) -> bool:
-        # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check;
-        # near an end (a grasp beside a wall) the exact check's own clearance, or no end next to a
-        # fixture could be left (the path found is edge-checked exactly all the same)
+        # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check
         q = full(s)
-        d = checker.distance(q)
-        if d < OMPL_CLEARANCE:
-            near = min(np.abs(q[idx] - q1[idx]).max(), np.abs(q[idx] - q2[idx]).max()) <= END_BALL
-            if not (near and d >= CLEARANCE):
-                return False
-        return not checker.self_collision(q)
+        return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
 
-    for what, q in (("start", q1), ("goal", q2)):
-        if checker.distance(q) < CLEARANCE or checker.self_collision(q):  # OMPL would spend its timeout on it
-            log.info("OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding)", what, CLEARANCE)
-            return None
+    s1, s2 = _nudged(checker, q1, idx, lo, hi), _nudged(checker, q2, idx, lo, hi)
+    if s1 is None or s2 is None:  # OMPL would spend its whole timeout on it
+        log.info(
+            "OMPL: the %s is not valid (within %.3f m of a fixture, or self-colliding), nor any nearby",
+            "start" if s1 is None else "goal",
+            OMPL_CLEARANCE,
+        )
+        return None
     ss.setStateValidityChecker(valid)
     start, goal = space.allocState(), space.allocState()
     for k, i in enumerate(idx):
-        start[k], goal[k] = float(q1[i]), float(q2[i])
+        start[k], goal[k] = float(s1[i]), float(s2[i])
     ss.setStartAndGoalStates(start, goal)
     si = ss.getSpaceInformation()
     si.setStateValidityCheckingResolution(0.001)  # a fraction of the space's extent: ~1 cm here
@@ -118,9 +119,32 @@ def plan_ompl(
         # a bounded vertex reduction only (OMPL's full simplify can take seconds with this validity
         # check); the caller shortcuts the result with the exact edge check
         og.PathSimplifier(si).reduceVertices(sol, REDUCE_STEPS)
-        path = model.limits.wrap(np.array([full(s) for s in sol.getStates()]))
+        states = [full(s) for s in sol.getStates()]
+        states = ([q1] if s1 is not q1 else []) + states + ([q2] if s2 is not q2 else [])
+        path = model.limits.wrap(np.array(states))
         if not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path)):
             return path
         log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)
     log.info("OMPL %s found no certified path in %.1f s", planner, timeout)
     return None
+
+
+def _nudged(checker: WorldChecker, q: FloatArray, idx: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray | None:
+    """q itself if OMPL accepts it (``valid_q``), else the first of Gaussian samples round q in the
+    joints ``idx`` (inside [lo, hi], widening NUDGE_SIGMAS, seeded: repeatable) that OMPL accepts and
+    that q reaches by a straight motion passing the exact edge check; None if none does."""
+    if valid_q(checker, q):
+        return q
+    rng = np.random.default_rng(0)
+    for sigma in NUDGE_SIGMAS:
+        for _ in range(NUDGE_TRIES):
+            z = q.copy()
+            z[idx] = np.clip(q[idx] + rng.normal(0.0, sigma, len(idx)), lo, hi)
+            if valid_q(checker, z) and not checker.edge_collides(q, z):
+                return z
+    return None
+
+
+def valid_q(checker: WorldChecker, q: FloatArray) -> bool:
+    """OMPL's validity of a whole configuration: OMPL_CLEARANCE from the fixtures, no self-collision."""
+    return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)

@@ -112,24 +112,69 @@ class ReachabilityPlanner:
 
     # ------------------------------------------------------------------ checks
     def edge_valid(self, i: int, j: int) -> bool:
-        """Check an edge once (lazily); remember the verdict in the graph. While carrying an object the
-        verdict holds for this query only: an edge too tight for the object may be fine for the hand (and the
-        same while a drawer is out)."""
-        if self.in_collision.attached is not None or self.in_collision.world_changed:
+        """Check an edge once (lazily); remember the verdict in the graph. While carrying an object, with
+        objects as obstacles or a drawer out, the verdict holds for this query only (an edge too tight for
+        the object may be fine for the hand), but it is split (``WorldChecker`` parts): the graph's own
+        verdict (fixtures, drawers closed, self) is looked up or, with the drawers closed, checked and
+        remembered, and only the rest (objects, open drawers, the held object) is checked per query."""
+        checker = self.in_collision
+        if checker.attached is not None or checker.world_changed:
             key = (min(i, j), max(i, j))
             if key not in self._carry_verdicts:
                 self.counters["edge_checks"] += 1
-                self._carry_verdicts[key] = not self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j])
+                closed = all(d == 0.0 for d in checker.openings.values())
+                if self.g.G.edges[i, j]["checked"]:
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j], part="changed")
+                elif closed:
+                    ok = self._graph_verdict(i, j)
+                    if not ok:
+                        return False  # removed from the graph: no verdict to keep for this query
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j], part="changed")
+                else:
+                    ok = not checker.edge_collides(self.g.Q[i], self.g.Q[j])
+                self._carry_verdicts[key] = ok
             return self._carry_verdicts[key]
-        data = self.g.G.edges[i, j]
-        if data["checked"]:
+        if self.g.G.edges[i, j]["checked"]:
             return True
         self.counters["edge_checks"] += 1
-        if self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j]):
+        return self._graph_verdict(i, j)
+
+    def _probe(self, i: int, j: int) -> bool:
+        """A cheap look before the edge checks of a path: False when the middle of edge (i, j) comes
+        within the checker's clearance of what the edge must clear (then its whole check would say so
+        too, and the verdict is recorded as ``edge_valid`` records it); True otherwise, which certifies
+        nothing. One distance query per part instead of a sweep: a path with a colliding edge is
+        replanned without sweeping its free edges first."""
+        checker = self.in_collision
+        q = self.g.Q[i] + 0.5 * self.g.limits.difference(self.g.Q[j], self.g.Q[i])
+        checked = self.g.G.edges[i, j]["checked"]
+        if checker.attached is None and not checker.world_changed:
+            if checked or checker.distance(q, part="fixed") >= checker.clearance:
+                return True
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
             return False
-        data["checked"] = True
+        key = (min(i, j), max(i, j))
+        if key in self._carry_verdicts:
+            return self._carry_verdicts[key]
+        closed = all(d == 0.0 for d in checker.openings.values())
+        if not checked and closed and checker.distance(q, part="fixed") < checker.clearance:
+            self.g.G.remove_edge(i, j)
+            self.counters["edges_removed"] += 1
+            return False
+        if checker.distance(q, part="changed" if (checked or closed) else "all") < checker.clearance:
+            self._carry_verdicts[key] = False
+            return False
+        return True
+
+    def _graph_verdict(self, i: int, j: int) -> bool:
+        """The graph's verdict on an unchecked edge (fixtures, drawers closed, self-collisions): a free
+        edge is marked checked, a colliding one removed."""
+        if self.in_collision.edge_collides(self.g.Q[i], self.g.Q[j], part="fixed"):
+            self.g.G.remove_edge(i, j)
+            self.counters["edges_removed"] += 1
+            return False
+        self.g.G.edges[i, j]["checked"] = True
         return True
 
     def _weight(self, u: int, v: int, d: dict) -> float | None:
@@ -309,7 +354,9 @@ class ReachabilityPlanner:
                 if bridges > MAX_BRIDGES or not self._bridge(a, b):
                     break
                 continue
-            bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]
+            bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self._probe(u, v)]
+            if not bad:  # no edge's middle collides: check them all (a free edge costs a whole sweep)
+                bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]
             if not bad:
                 path = self.g.Q[nodes]
                 cost = float(sum(self.g.G.edges[u, v]["weight"] for u, v in itertools.pairwise(nodes)))

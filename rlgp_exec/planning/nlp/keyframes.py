@@ -202,53 +202,48 @@ def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatA
     return {m: T for m, T in before.items() if not (a.name in ("pick", "place", "drop") and m == a.obj)}
 
 
-def solve_keyframes(
+@dataclass(frozen=True)
+class _Problem:
+    """A built keyframe NLP for one action sequence: the solver and what its solutions are read with.
+    The grasps' tilt bound is not in ``ubg``: rows ``tilt_rows`` get -cos(max_tilt) per solve."""
+
+    n: int
+    K: int
+    solver: ca.Function
+    f_motion: ca.Function
+    labels: list[str]
+    targets: list[FloatArray | None]
+    opening_at: list[dict[str, float]]
+    footprints_at: list[list[tuple[FloatArray, FloatArray]]]
+    poses: dict[str, FloatArray]
+    openings0: dict[str, float]
+    held_grasp: FloatArray | None  # T_tool_obj of the start's held object
+    sizes: dict[str, tuple[float, float, float]]
+    lbx: FloatArray
+    ubx: FloatArray
+    lbg: FloatArray
+    ubg: FloatArray
+    tilt_rows: list[int]
+
+
+def _build(
     model: RobotModel,
     scene: Scene,
     q_start: FloatArray,
     actions: list[Action],
-    manipulator: str | None = None,
-    seed: int = 0,
-    in_collision: Callable[[FloatArray, dict[str, float], Action, dict[str, FloatArray]], bool] | None = None,
-    max_tilt: float = 0.0,
-    ik: ReachIK | None = None,
-    hand: Sequence[tuple[FloatArray, float]] = (),
-    self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
-    body: Sequence[tuple[str, Box]] = (),
-    lift_room: float = 0.0,
-    seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
-    deadline: float | None = None,
-) -> KeyframeResult:
-    """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
-    (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
-    model; it gets the drawers' openings [m] at that keyframe, the action, and the objects that are
-    obstacles there, T_world_obj where they stand) rejects a solution. ``max_tilt`` [rad]: how far from
-    vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
-    ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
-    ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
-    (``nlp.hand.body_obstacles``).
-    ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
-    its travel above it (the vertical leave is then one lift motion).
-    ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
-    nodes near x, nearest first); every other start uses them, the rest a random free base heading.
-    ``deadline`` (``time.perf_counter()`` [s]): no new start after it (the best so far is returned).
-    After a PyBullet rejection the next attempt restarts only the rejected keyframes."""
-    t0 = time.perf_counter()
-    objs = {o.name: o for o in scene.objects}
-    drawers = drawer_views(scene)
-    for a in actions:
-        if a.name not in ACTIONS:
-            raise RlgpError(f"keyframe NLP: unknown action {a.name!r}; valid: {list(ACTIONS)}")
-        if a.name in DRAWER_ACTIONS:
-            if a.obj not in drawers:
-                raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.obj!r}; valid: {sorted(drawers)}")
-        elif a.obj not in objs:
-            raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
-        if a.name == "drop" and a.target not in drawers:
-            raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
-    ik = ik if ik is not None else ReachIK(model, scene, q_start, manipulator)
+    manipulator: str | None,
+    ik: ReachIK,
+    hand: Sequence[tuple[FloatArray, float]],
+    self_spheres: Sequence[tuple[str, FloatArray, float]],
+    body: Sequence[tuple[str, Box]],
+    lift_room: float,
+    objs: dict,
+    drawers: dict,
+) -> _Problem:
+    """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
     Z = ca.SX.sym("z", n, K)
+    tilt_rows: list[int] = []
     rows = Rows.empty()
     fixture_rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
@@ -269,7 +264,6 @@ def solve_keyframes(
     targets: list[FloatArray | None] = []  # None: the keyframe follows from the previous one
     labels: list[str] = []  # one per constraint row, for the failure reason
     tilts: list[ca.SX] = []  # 1 + a_z of each grasp: a vertical hand carries objects most safely
-    rng = np.random.default_rng(seed)
     for k, a in enumerate(actions):
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k])
         if a.name in ("open_drawer", "close_drawer"):
@@ -318,7 +312,8 @@ def solve_keyframes(
                 # object pivots about them as the fingers close (seen in physics: a cup tipped ~30 deg)
                 tilts.append(grasp_top_round(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             else:  # flat faces: the pads stay vertical (closing axis horizontal), the box stays upright
-                tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=max_tilt))
+                tilt_rows.append(len(rows.g) + 3)  # grasp_top's approach row: its bound is the tilt, set per solve
+                tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held = a.obj
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
@@ -376,8 +371,78 @@ def solve_keyframes(
     )
     lbx = np.tile(ik.lo, K)
     ubx = np.tile(ik.hi, K)
-    lbg, ubg = np.asarray(rows.lower), np.asarray(rows.upper)
+    lbg, ubg = np.asarray(rows.lower, float), np.asarray(rows.upper, float)
     f_motion = ca.Function("f_motion", [ca.vec(Z)], [cost])
+    return _Problem(
+        n, K, solver, f_motion, labels, targets, opening_at, footprints_at, poses, openings0, held_T0, sizes,
+        lbx, ubx, lbg, ubg, tilt_rows,
+    )
+
+
+def solve_keyframes(
+    model: RobotModel,
+    scene: Scene,
+    q_start: FloatArray,
+    actions: list[Action],
+    manipulator: str | None = None,
+    seed: int = 0,
+    in_collision: Callable[[FloatArray, dict[str, float], Action, dict[str, FloatArray]], bool] | None = None,
+    max_tilt: float = 0.0,
+    ik: ReachIK | None = None,
+    hand: Sequence[tuple[FloatArray, float]] = (),
+    self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
+    body: Sequence[tuple[str, Box]] = (),
+    lift_room: float = 0.0,
+    seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
+    deadline: float | None = None,
+    cache: dict | None = None,
+) -> KeyframeResult:
+    """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
+    (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
+    model; it gets the drawers' openings [m] at that keyframe, the action, and the objects that are
+    obstacles there, T_world_obj where they stand) rejects a solution. ``max_tilt`` [rad]: how far from
+    vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
+    ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
+    ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
+    (``nlp.hand.body_obstacles``).
+    ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
+    its travel above it (the vertical leave is then one lift motion).
+    ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
+    nodes near x, nearest first); every other start uses them, the rest a random free base heading.
+    ``deadline`` (``time.perf_counter()`` [s]): no new start after it (the best so far is returned).
+    After a PyBullet rejection the next attempt restarts only the rejected keyframes.
+    ``cache``: a dict the caller keeps; the NLP built for this sequence is kept there and reused by the
+    next call for the same sequence (another ``max_tilt``: only the tilt bounds differ)."""
+    t0 = time.perf_counter()
+    objs = {o.name: o for o in scene.objects}
+    drawers = drawer_views(scene)
+    for a in actions:
+        if a.name not in ACTIONS:
+            raise RlgpError(f"keyframe NLP: unknown action {a.name!r}; valid: {list(ACTIONS)}")
+        if a.name in DRAWER_ACTIONS:
+            if a.obj not in drawers:
+                raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.obj!r}; valid: {sorted(drawers)}")
+        elif a.obj not in objs:
+            raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
+        if a.name == "drop" and a.target not in drawers:
+            raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
+    ik = ik if ik is not None else ReachIK(model, scene, q_start, manipulator)
+    key = (tuple(actions), manipulator, lift_room, id(ik))
+    prob = cache.get(key) if cache is not None else None
+    if prob is None:
+        prob = _build(
+            model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers
+        )
+        if cache is not None:  # one sequence at a time: its tilts share the NLP
+            cache.clear()
+            cache[key] = prob
+    n, K, solver, f_motion, labels, targets = prob.n, prob.K, prob.solver, prob.f_motion, prob.labels, prob.targets
+    opening_at, footprints_at, poses = prob.opening_at, prob.footprints_at, prob.poses
+    openings0, held_T0, sizes = prob.openings0, prob.held_grasp, prob.sizes
+    lbx, ubx, lbg = prob.lbx, prob.ubx, prob.lbg
+    ubg = prob.ubg.copy()
+    ubg[prob.tilt_rows] = -float(np.cos(max_tilt))
+    rng = np.random.default_rng(seed)
 
     def solve(x0: FloatArray, w_m: float, w_s: float, z_seed: FloatArray) -> tuple[dict, float, str]:
         """One IPOPT run: (result, largest constraint violation, the worst row's label)."""
