@@ -385,12 +385,12 @@ class Executive:
         sense again. None when the hand is free; else how the task ends (e-stop, cancel, refused)."""
         self.sm.to(S.RECOVERING, f"let go of the knob of {cabinet!r}")
         release = release_knob(self.model, self.scene, cabinet)
-        if not release.ok:
+        if not release.success:
             raise _FailedError(f"the hand holds the knob of {cabinet!r} and cannot let go: {release.reason}")
         self._event("recovery", action="release_knob", cabinet=cabinet)
-        outcome, seconds = self._act(release.plan, self._time(release.plan), self.scene)
+        outcome, seconds = self._act(release, self._time(release), self.scene)
         stats["execution_time_s"] += seconds
-        self._hand_after(release.plan, outcome, self.scene)
+        self._hand_after(release, outcome, self.scene)
         if outcome.status is ActStatus.ESTOPPED:
             self._latch_estop("e-stop while letting go of a knob")
             return TaskStatus.ESTOPPED, "e-stop while letting go of the knob"

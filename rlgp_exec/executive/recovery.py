@@ -10,8 +10,6 @@ in the sensed world (the drawer at its sensed opening), before anything moves.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from rlgp_exec.planning.drawers import drawer_view
@@ -22,29 +20,15 @@ from rlgp_exec.reach.build import nominal_q
 from rlgp_exec.robot.model import RobotModel
 from rlgp_exec.scene import Scene
 
-__all__ = ["LEAVE_M", "KnobRelease", "release_knob"]
+__all__ = ["LEAVE_M", "release_knob"]
 
 LEAVE_M = APPROACH  # [m] the base backs off this far along the drawer's axis, as the plans' leave phase
 
 
-@dataclass(frozen=True)
-class KnobRelease:
-    """The let-go motion as a plan (``plan.success``: checked collision-free), or why it is refused."""
-
-    plan: Plan
-
-    @property
-    def ok(self) -> bool:
-        return self.plan.success
-
-    @property
-    def reason(self) -> str:
-        return self.plan.reason
-
-
-def release_knob(model: RobotModel, scene: Scene, cabinet: str) -> KnobRelease:
+def release_knob(model: RobotModel, scene: Scene, cabinet: str) -> Plan:
     """Let go of ``cabinet``'s knob from the robot's configuration in ``scene`` (the sensed world model,
-    the drawer at its sensed opening) and back off along the drawer's axis."""
+    the drawer at its sensed opening) and back off along the drawer's axis, as a plan whose ``success``
+    says the motion replays collision-free (``reason``: the collisions otherwise)."""
     q = nominal_q(model, scene)
     q_leave = q.copy()
     q_leave[:2] += LEAVE_M * drawer_view(scene, cabinet).axis_world[:2]
@@ -55,6 +39,4 @@ def release_knob(model: RobotModel, scene: Scene, cabinet: str) -> KnobRelease:
     validation = validate_plan(scene, phases)
     reason = "ok" if validation.collision_free else "; ".join(validation.collisions[:3])
     actions = (f"(release_knob {cabinet})",)
-    return KnobRelease(
-        Plan(validation.collision_free, "recovery", actions, q[None], phases, 0.0, 0, 0, validation, reason)
-    )
+    return Plan(validation.collision_free, "recovery", actions, q[None], phases, 0.0, 0, 0, validation, reason)

@@ -9,8 +9,9 @@ towards a target state, and outputs that motion's state one control period later
   position after ``L`` lands on the reference's (the integral of a cubic velocity ramp:
   ``q + L (v + v*) / 2 + L^2 (a - a*) / 12 = q_ref(t + L)``). Ruckig then acts as a jerk-limited
   tracking filter in phase with the reference, at a fraction of the position interface's cost (one
-  velocity-interface update: ~2 us for 8 DoF against ~10 us, and no blocked intervals: those made a
-  third of the position interface's cycles calculate twice).
+  velocity-interface update: ~2 us for 8 DoF against ~10 us; the position interface's blocked intervals
+  made a third of its cycles calculate twice). A velocity-interface result stretched past ``L`` is
+  kept: it still moves towards the reference within the limits, and the next cycle plans again.
 - FOLLOW, off the reference (a re-target to a trajectory that starts elsewhere) or landing (the
   look-ahead past the end): the position interface, the reference's state ``L`` ahead to be reached
   in exactly ``L`` (``minimum_duration`` with time synchronisation): Ruckig plans the catch-up with
