@@ -194,6 +194,8 @@ def run_planner_bench(
                     "n_median": _median([c["n"] for c in ok_counted if c.get("n") is not None]),
                     "nlp_median_all_runs": _median([c["nlp"] for c in counted if "nlp" in c]),
                     "conflicts_median": _median([c["conflicts"] for c in counted if "conflicts" in c]),
+                    # the planner process's CPU time of the solved runs [s]: less load-dependent than time_s
+                    "cpu_s_median": _median([c["cpu_s"] for c in ok_counted if "cpu_s" in c]),
                 }
             )
     out = {
