@@ -99,6 +99,25 @@ def test_the_replay_catches_collisions_and_unmet_goals(scene):
     assert standing.collision_free and not standing.goal_met and len(standing.unmet) == 2
 
 
+def test_the_replay_catches_a_held_object_in_the_robots_own_body(scene):
+    """The held object is checked against the robot too, but for the links of the hand holding it:
+    between the fingers it passes, inside the base and torso it is a collision."""
+    import dataclasses
+
+    from rlgp_exec.scene.types import StartState
+
+    model = load_robot("hsr")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    T_world_body = np.eye(4)
+    T_world_body[:3, 3] = [q0[0], q0[1], 0.45]
+    in_body = np.linalg.inv(model.fk(q0, model.manipulator().tool_frame)) @ T_world_body
+    for T_tool_obj, where in ((np.eye(4), None), (in_body, {"base_link", "torso_lift_link"})):
+        held = dataclasses.replace(scene, start=StartState.holding("block_blue", T_tool_obj))
+        v = validate_plan(held, [Phase(np.array([q0, q0]), "block_blue")])
+        hits = {c.rsplit(" ", 1)[-1] for c in v.collisions if "held block_blue ~ robot" in c}
+        assert hits == (where or set()), v.collisions
+
+
 def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
     """The PR2's fingers are meshes (no NLP spheres): the PyBullet keyframe check must see the objects
     where they stand, or a grasp between close blocks puts a fingertip ~1 cm into the neighbour

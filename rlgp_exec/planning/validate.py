@@ -3,8 +3,9 @@
 The robot follows each phase's joint path at ``step`` [rad or m] per joint; an object picked at the end
 of a phase (or in the hand from the start, ``scene.start``) rides with the hand (its pose relative to
 the tool frozen at the grasp) until it is placed.
-Collisions are checked for the robot (against the world and itself; the held object is the hand's)
-and for the held object (against everything but the robot). The goal literals are then checked in the
+Collisions are checked for the robot (against the world and itself) and for the held object (against
+the world, and against the robot but for the links of the hand holding it: a held object swung
+through the robot's own body or its other arm is a collision). The goal literals are then checked in the
 final simulated state; a literal this checker cannot evaluate counts as unmet, never as met.
 
 Drawers (``drawer_replay``): a phase that ``drives_drawer`` moves the drawer joint with the hand on the
@@ -101,16 +102,17 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     world = build_world(scene, tags=False)
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
-    # per held object: the tool frame holding it, T_tool_obj, and its penetration into its support when
-    # it was grasped [m] (two arms may hold one object each)
-    held: dict[str, tuple[str, FloatArray, float]] = {}
+    # per held object: the tool frame holding it, T_tool_obj, its penetration into its support when it
+    # was grasped [m] and the links of the hand holding it (two arms may hold one object each)
+    held: dict[str, tuple[str, FloatArray, float, frozenset[str]]] = {}
     try:
         if scene.start.held is not None:  # in the hand from the start (a replan mid-task)
-            held[scene.start.held] = (model.manipulator(scene.start.arm).tool_frame, scene.start.T_tool_obj, 0.0)
+            man = model.manipulator(scene.start.arm)
+            held[scene.start.held] = (man.tool_frame, scene.start.T_tool_obj, 0.0, frozenset(man.links))
             robot.ignore_body(world.objects[scene.start.held])
         for k, ph in enumerate(phases):
             tool = model.manipulator(ph.arm).tool_frame
-            fingers = set(model.manipulator(ph.arm).links)
+            fingers = frozenset(model.manipulator(ph.arm).links)
             moving = ([ph.held] if ph.held is not None else []) + [o for _, o in ph.carried]
             for o in moving:
                 if o not in held:
@@ -140,6 +142,10 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                     for c in p.getContactPoints(bodyA=world.objects[o], physicsClientId=client):
                         if c[2] != robot.id and c[8] < held[o][2] - tolerance:
                             collisions.append(f"phase {k}: held {o} ~ {world.body_name(c[2])}")
+                        elif c[2] == robot.id and c[8] < -tolerance:
+                            link = robot.link_name.get(c[4], str(c[4]))
+                            if link not in held[o][3]:
+                                collisions.append(f"phase {k}: held {o} ~ robot {link}")
                 if collisions:
                     break
             if collisions:
@@ -159,7 +165,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                         if c[2] != robot.id
                     ]
                 )
-                held[ph.grasp] = (tool, held_T, rest)
+                held[ph.grasp] = (tool, held_T, rest, fingers)
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
                 held.pop(ph.release, None)
