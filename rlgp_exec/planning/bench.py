@@ -23,9 +23,10 @@ import platform
 import sys
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from queue import Empty
+from typing import Any
 
 import numpy as np
 
@@ -102,7 +103,7 @@ def _report(record: dict, done: int, total: int) -> None:
 
 
 def _submit_all(
-    jobs, submit: Callable[..., Future], scene_path: str, job=run_isolated, completed=as_completed
+    jobs, submit: Callable[..., Any], scene_path: str, job=run_isolated, completed=as_completed
 ) -> list[tuple[dict, list]]:
     """Every job submitted at once; ``completed``: the ``as_completed`` of the futures' kind."""
     t0 = time.perf_counter()
