@@ -283,3 +283,32 @@ def test_objects_wider_than_the_open_gripper_are_not_picked(pr2):
     assert res.counters["nlp"] == 0
     small = _tower(["b1"], ["(on b1 goal_region)"])  # 5 cm blocks fit, with room to be let go
     assert FactorLib(pr2, small).too_wide() == {} and FactorLib(pr2, small).grasp_offset_max("b1") > 0
+
+
+def test_the_budget_is_cpu_time_so_a_loaded_machine_takes_longer_not_fewer_nlps(monkeypatch):
+    """Every solve waits 0.3 s without using the CPU (as on a machine whose other processes take it):
+    with a 1 s budget the same NLPs are solved and the same plan found, in more wall time; the
+    budget's own clock still ends a search that uses the CPU."""
+    import time
+
+    from rlgp_exec.planning.gnpp import solver as solver_mod
+
+    scene = _tower(["b1"], ["(on b1 goal_region)"])
+    quick = plan_gnpp(scene, "gnpp_trn", timeout_s=30.0)
+    assert quick.status is GnppStatus.SOLVED and quick.counters["cpu_s"] < 10.0
+    solve = solver_mod.GraphSolver.solve
+
+    def waiting(self, factors, guess):
+        time.sleep(0.3)
+        return solve(self, factors, guess)
+
+    monkeypatch.setattr(solver_mod.GraphSolver, "solve", waiting)
+    budget = max(2.0 * quick.counters["cpu_s"], 1.0)
+    assert 0.3 * quick.counters["nlp"] > budget  # the waits alone overrun it in wall time
+    slow = plan_gnpp(scene, "gnpp_trn", timeout_s=budget)
+    assert slow.status is GnppStatus.SOLVED, slow.plan.reason
+    assert slow.counters["nlp"] == quick.counters["nlp"] and slow.plan.actions == quick.plan.actions
+    assert slow.plan.planning_time_s > budget > slow.counters["cpu_s"]
+    spent = plan_gnpp(_tower(["b1", "b2", "b3"], ["(on b1 goal_region)", "(on b2 b1)", "(on b3 b2)"]),
+                      "gnpp_trn", timeout_s=0.5)
+    assert spent.status is GnppStatus.TIMEOUT and "s CPU" in spent.plan.reason
