@@ -31,7 +31,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     from sim.render import render_scene_png
 
     scene = load_scene(args.scene)
-    if args.seed is not None:
+    if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
     out = render_scene_png(scene, args.png, width=args.width, height=args.height, view=args.view)
     print(f"{scene.name}: wrote {out}")
@@ -109,7 +109,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from rlgp_exec.scene import load_scene, randomize
 
     scene = load_scene(args.scene)
-    if args.seed is not None:
+    if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
     plan = run_planner(scene, args.planner, seed=args.seed or 0)
     summary = plan.summary()
@@ -413,7 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="rlgp: reachability-graph heuristic; lgp: distance-only baseline; gnpp and its ablations "
         "(unknown names list the valid ones)",
     )
-    s.add_argument("--seed", type=int, help="randomise object poses with this seed")
+    s.add_argument("--seed", type=int, help="randomise object poses with this seed (0: the file as is, as in bench)")
     s.add_argument("--json")
     s.add_argument("--plot", help="write the plan's base path (top view of the scene) to this PNG")
     s.set_defaults(func=cmd_plan)
@@ -508,7 +508,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("show", help="render a scene to a PNG (PyBullet camera)")
     s.add_argument("scene")
     s.add_argument("--png", required=True)
-    s.add_argument("--seed", type=int, help="randomise object poses with this seed")
+    s.add_argument("--seed", type=int, help="randomise object poses with this seed (0: the file as is, as in bench)")
     s.add_argument("--view", choices=["overview", "top", "robot"], default="overview")
     s.add_argument("--width", type=int, default=960)
     s.add_argument("--height", type=int, default=720)
