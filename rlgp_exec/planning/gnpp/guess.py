@@ -11,20 +11,21 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
-from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, T_TOOL_UPRIGHT, FactorLib
-from rlgp_exec.planning.gnpp.pntc import Var, parents
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
+from rlgp_exec.planning.gnpp.pntc import Var, moving, parents
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["TopIK", "initial_guess"]
+__all__ = ["TopIK", "initial_guess", "rel_T"]
 
 log = logging.getLogger(__name__)
 RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
 
 
 class TopIK:
-    """q (7,) for one arm with the tool at a point, approach straight down, fingers horizontal,
-    the arm clear of the fixtures; closest to a reference posture. Also used to lift a hand."""
+    """q (the arm's variable, ``FactorLib.arm_index``) for one arm with the tool at a point, approach
+    straight down, fingers horizontal, the arm clear of the fixtures (``ColFix``; a mobile base's
+    footprint too); closest to a reference posture. Also used to lift a hand (the base held)."""
 
     def __init__(self, lib: FactorLib) -> None:
         self.lib = lib
@@ -37,7 +38,7 @@ class TopIK:
             man = self.lib.model.manipulator(arm)
             n = len(self.lib.arm_index(arm))
             q, p = ca.SX.sym("q", n), ca.SX.sym("p", 3 + n)
-            T = self.lib.arm_shapes(arm)[0](q)[1]
+            T = self.lib.arm_shapes(arm).fn(q)[1]
             a = T[:3, :3] @ ca.DM(man.approach)
             c = T[:3, :3] @ ca.DM(man.closing)
             col = self.lib.factor(("ColFix", arm))
@@ -49,15 +50,23 @@ class TopIK:
             self._solvers[arm] = (s, lbg, ubg)
         return self._solvers[arm]
 
-    def solve(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
-        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it."""
-        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2))
+    def solve(
+        self, arm: str, pos: FloatArray, q_ref: FloatArray, fixed_base: bool = False
+    ) -> tuple[bool, FloatArray]:
+        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it (a
+        mobile arm's base: q_ref's). ``fixed_base``: a mobile arm's base stays at q_ref's."""
+        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), fixed_base)
         if key in self._memo:
             return self._memo[key]
         s, lbg, ubg = self._solver(arm)
         lo, hi = self.lib.var_bounds("q", arm)
         rng = np.random.default_rng(7)
         home = self.lib.home_q(arm)
+        if self.lib.mobile:
+            home[:3] = q_ref[:3]
+            if fixed_base:
+                lo, hi = lo.copy(), hi.copy()
+                lo[:3] = hi[:3] = q_ref[:3]
         starts = [q_ref, home] + [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
         out = (False, np.asarray(q_ref, float))
         for q0 in starts:
@@ -73,26 +82,28 @@ class TopIK:
         return out
 
 
-def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatArray:
-    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q7."""
-    R = (np.linalg.inv(lib.tool_T(arm, q7)) @ lib.object_T(w))[:3]
-    z = R[:3, 2]
-    theta = math.atan2(z[2], -z[0])
+def _held_of(lib: FactorLib, arm: str, q: FloatArray, w: FloatArray) -> FloatArray:
+    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q."""
+    R = (np.linalg.inv(lib.tool_T(arm, q)) @ lib.object_T(w))[:3]
+    z, up = R[:3, 2], lib.upright(arm)
+    # the tilt about the fingers' (tool y) axis that turns the upright object's z onto z
+    theta = math.atan2(z[0], z[2]) - math.atan2(up[0, 2], up[2, 2])
+    theta = math.atan2(math.sin(theta), math.cos(theta))
     ct, st = math.cos(theta), math.sin(theta)
     Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
-    M = T_TOOL_UPRIGHT.T @ Ry.T @ R[:3, :3]
+    M = up.T @ Ry.T @ R[:3, :3]
     psi = math.atan2(M[1, 0], M[0, 0])
     p = R[:3, 3]
     return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
-def _rel_T(r: FloatArray) -> FloatArray:
+def rel_T(r: FloatArray, upright: FloatArray) -> FloatArray:
     """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``geometry._rel_pose``, numerically)."""
     c, s = math.cos(r[2]), math.sin(r[2])
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     ct, st = math.cos(r[3]), math.sin(r[3])
     Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
-    R = Ry @ T_TOOL_UPRIGHT @ Rz
+    R = Ry @ upright @ Rz
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = -r[0] * R[:, 2] + r[1] * np.array([0.0, 1.0, 0.0])
@@ -189,13 +200,40 @@ def initial_guess(
                         # the object put down turned as the hand holds it: the Kin factor's yaw row
                         # (sine of the yaw difference) is stationary a quarter turn off, where a
                         # start with the pose's old yaw could leave it (a false conflict)
-                        T = lib.tool_T(arm, q[arm]) @ _rel_T(held[o])
+                        T = lib.tool_T(arm, q[arm]) @ rel_T(held[o], lib.upright(arm))
                         world[o][3] = math.atan2(T[1, 0], T[0, 0])
             out[Var("x", o, t)] = world[o].copy()
         for m in arms:
             out[Var("q", m, t)] = q[m].copy()
         prev = par
+    if lib.mobile:
+        for m in arms:
+            _hold_base(out, states, m)
     missing = [v for v in variables if v not in out]
     if missing:
         log.warning("no initial value for %s", missing[:5])
     return out
+
+
+def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], arm: str) -> None:
+    """A mobile arm's base in ``out`` made constant over each stretch of states in which it is not moving
+    (as ``EqualBase`` will hold it): the base of the stretch's first keyframe (the IK chose it to reach
+    there; the start's for the first stretch); a state in which it moves takes the next stretch's."""
+    runs: list[list[int]] = []
+    for t, s in enumerate(states):
+        if moving(arm) in s:
+            continue
+        if runs and runs[-1][-1] == t - 1:
+            runs[-1].append(t)
+        else:
+            runs.append([t])
+    for k, run in enumerate(runs):
+        qs = [out[Var("q", arm, t)] for t in run]
+        first = next((i for i in range(1, len(qs)) if not np.allclose(qs[i], qs[i - 1])), 0)
+        base = qs[0][:3].copy() if run[0] == 0 else qs[first][:3].copy()
+        end = runs[k + 1][0] if k + 1 < len(runs) else len(states)
+        for t in range(run[0], end):  # the stretch, then the moving states after it take the next base
+            out[Var("q", arm, t)][:3] = base
+        if k > 0:
+            for t in range(runs[k - 1][-1] + 1, run[0]):
+                out[Var("q", arm, t)][:3] = base
