@@ -1,9 +1,9 @@
 """The planner bench: interleaved runs in worker processes, the summary, the base-path plot, and the
-cluster option's error when Dask's scheduler is not installed."""
+cluster option: a sweep on a local Dask cluster, and its errors."""
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,10 +32,41 @@ def test_bench_rejects_unknown_planners_and_bad_worker_counts():
         run_planner_bench(SORTING, ["rlgp"], seeds=1, workers=0)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("distributed") is not None, reason="Dask's scheduler is installed")
-def test_cluster_mode_without_dask_says_what_it_needs():
+def test_the_sweep_runs_on_a_dask_cluster_given_its_address():
+    """`bench --cluster ADDRESS`: the jobs run on the cluster's workers (a local cluster with one worker
+    process here), the plans are validated there, and the summary is the same kind as a local sweep."""
+    from dask.distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        out = run_planner_bench(SORTING, ["rlgp"], seeds=1, cluster=cluster.scheduler_address)
+        with Client(cluster.scheduler_address) as client:
+            ran = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
+    assert "run_job" in ran  # executed by the cluster, not locally
+    (run,) = out["runs"]
+    assert run["success"] and run["collision_free"] and run["goal_met"], run["reason"]
+    assert out["cluster"] == cluster.scheduler_address and out["summary"]["rlgp"]["success_rate"] == 1.0
+
+
+def test_cluster_mode_says_what_it_needs(monkeypatch):
+    with pytest.raises(RlgpError, match="no Dask scheduler answered"):
+        run_planner_bench(SORTING, ["rlgp"], seeds=1, cluster="tcp://127.0.0.1:9")
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as without Dask installed
     with pytest.raises(RlgpError, match="dask"):
         run_planner_bench(SORTING, ["rlgp"], seeds=1, cluster="tcp://127.0.0.1:8786")
+
+
+def test_a_job_that_raises_is_a_failed_run_with_the_reason():
+    """A job whose future raises (on a cluster: a worker killed natively on it, thrice) is recorded."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rlgp_exec.planning.bench import _submit_all
+
+    def boom(scene_path, planner, seed):
+        raise RuntimeError(f"{planner} {seed} lost")
+
+    with ThreadPoolExecutor(1) as ex:
+        ((rec, xy),) = _submit_all([(3, "rlgp")], ex.submit, str(SORTING), job=boom)
+    assert not rec["success"] and rec["seed"] == 3 and rec["reason"] == "lost: RuntimeError: rlgp 3 lost" and xy == []
 
 
 def test_a_run_that_crashes_natively_is_a_failed_run_not_the_end_of_the_sweep(monkeypatch):

@@ -225,6 +225,30 @@ def test_search_budget_and_exhaustion_are_reported(scenes):
     assert solve_ground(impossible).status is FDStatus.UNSOLVABLE
 
 
+@pytest.mark.parametrize("name", ["table_clearing_hsr", "tower_pr2", "hanoi_pr2"])
+def test_indexed_successors_equal_a_scan_of_every_operator(scenes, name):
+    """``successors`` looks only at the operators one atom of the state triggers; along random walks
+    (also on a reformulated task, whose operators have conditional effects) it must give exactly the
+    applicable operators, in the operators' order, with the same successor states."""
+    import random
+
+    g = ground_scene(scenes[name])
+    plan = next(best_first(g, heuristic=goal_lower_bound(g)))
+    f = ForbiddenSequence((PartialState(plan.states[1]), PartialState(plan.states[2])))
+    for task in (g, reformulate(g, [f]).problem):
+        rng = random.Random(0)
+        for _ in range(5):
+            s = task.init
+            for _ in range(12):
+                scan = [(op.action, op.apply(s)) for op in task.operators if op.applicable(s)]
+                if task.required:
+                    scan = [(a, t) for a, t in scan if task.required <= t]
+                assert task.successors(s) == scan
+                if not scan:
+                    break
+                s = rng.choice(scan)[1]
+
+
 # --- Fast Downward failure statuses ----------------------------------------------------------------
 
 

@@ -9,7 +9,8 @@ Every (seed, planner) job runs in a child process of its own (a native crash is 
 end of the sweep); ``workers`` > 1 keeps that many running at once (``concurrent.futures``), each job
 loading the scene file itself; ``cluster`` (a Dask scheduler address, e.g. ``tcp://host:8786``)
 submits the same jobs to an existing Dask cluster instead (the workers must have this project
-installed and the scene file at the same path). ``plot`` writes the successful runs' base paths
+installed and the scene file at the same path; Dask ships jobs and results with its own serialisation,
+pickle included: a cluster is a trusted, private network). ``plot`` writes the successful runs' base paths
 (``planning.plot``).
 """
 
@@ -36,6 +37,7 @@ from rlgp_exec.scene import load_scene, randomize
 __all__ = ["run_isolated", "run_job", "run_planner_bench"]
 
 log = logging.getLogger(__name__)
+CONNECT_TIMEOUT_S = 10.0  # [s] how long bench --cluster waits for the Dask scheduler
 
 
 def _median(xs: list[float]) -> float | None:
@@ -75,15 +77,19 @@ def run_isolated(scene_path: str, planner: str, seed: int) -> tuple[dict, list[l
                 if not proc.is_alive():
                     break
         proc.join()
-        reason = f"crashed: the planning process ended with exit code {proc.exitcode}"
-        log.warning("seed %d %s: %s", seed, planner, reason)
-        wall = time.perf_counter() - t0
-        rec = {"success": False, "planner": planner, "planning_time_s": wall, "actions": [], "n_steps": 0,
-               "base_path_length_m": 0.0, "collision_free": None, "goal_met": None, "n_nlp": 0,
-               "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall}
-        return rec, []
+        return _failed(planner, seed, f"crashed: the planning process ended with exit code {proc.exitcode}", t0)
     finally:
         proc.join(timeout=5.0)
+
+
+def _failed(planner: str, seed: int, reason: str, t0: float) -> tuple[dict, list[list[float]]]:
+    """The record of a run that ended without a plan of its own (a crash, a lost cluster worker)."""
+    log.warning("seed %d %s: %s", seed, planner, reason)
+    wall = time.perf_counter() - t0
+    rec = {"success": False, "planner": planner, "planning_time_s": wall, "actions": [], "n_steps": 0,
+           "base_path_length_m": 0.0, "collision_free": None, "goal_met": None, "n_nlp": 0,
+           "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall}
+    return rec, []
 
 
 def _report(record: dict, done: int, total: int) -> None:
@@ -95,11 +101,20 @@ def _report(record: dict, done: int, total: int) -> None:
     )
 
 
-def _submit_all(jobs, submit: Callable[..., Future], scene_path: str, job=run_isolated) -> list[tuple[dict, list]]:
+def _submit_all(
+    jobs, submit: Callable[..., Future], scene_path: str, job=run_isolated, completed=as_completed
+) -> list[tuple[dict, list]]:
+    """Every job submitted at once; ``completed``: the ``as_completed`` of the futures' kind."""
+    t0 = time.perf_counter()
     futures = {submit(job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
     out: list[tuple[dict, list] | None] = [None] * len(jobs)
-    for done, fut in enumerate(as_completed(futures), 1):
-        out[futures[fut]] = fut.result()
+    for done, fut in enumerate(completed(futures), 1):
+        k = futures[fut]
+        try:
+            out[k] = fut.result()
+        except Exception as e:  # e.g. Dask's KilledWorker: a worker died natively on this job, thrice
+            seed, name = jobs[k]
+            out[k] = _failed(name, seed, f"lost: {type(e).__name__}: {e}", t0)
         _report(out[futures[fut]][0], done, len(jobs))  # type: ignore[index]
     return out  # type: ignore[return-value]
 
@@ -107,13 +122,23 @@ def _submit_all(jobs, submit: Callable[..., Future], scene_path: str, job=run_is
 def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
     try:
         from dask.distributed import Client
+        from dask.distributed import as_completed as dask_completed
     except ModuleNotFoundError:
         raise RlgpError(
             f"bench --cluster {address}: needs Dask's distributed scheduler in this environment "
             "(pip install 'dask[distributed]'); valid without it: --workers K"
         ) from None
-    with Client(address) as client:
-        return _submit_all(jobs, client.submit, scene_path, run_job)
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError) as e:
+        raise RlgpError(
+            f"bench --cluster {address}: no Dask scheduler answered within {CONNECT_TIMEOUT_S} s ({e}); "
+            "start one (`dask scheduler`, then `dask worker ADDRESS` per machine) or use --workers K"
+        ) from None
+    with client:
+        # run_job in the worker itself: Dask's workers are daemon processes, which may not start the
+        # child process run_isolated would; a worker that dies on a job is replaced by its nanny
+        return _submit_all(jobs, client.submit, scene_path, run_job, dask_completed)
 
 
 def run_planner_bench(
@@ -169,6 +194,8 @@ def run_planner_bench(
                     "n_median": _median([c["n"] for c in ok_counted if c.get("n") is not None]),
                     "nlp_median_all_runs": _median([c["nlp"] for c in counted if "nlp" in c]),
                     "conflicts_median": _median([c["conflicts"] for c in counted if "conflicts" in c]),
+                    # the planner process's CPU time of the solved runs [s]: less load-dependent than time_s
+                    "cpu_s_median": _median([c["cpu_s"] for c in ok_counted if "cpu_s" in c]),
                 }
             )
     out = {

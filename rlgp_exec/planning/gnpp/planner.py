@@ -77,7 +77,7 @@ class Logic(enum.Enum):
 
 class GnppStatus(enum.Enum):
     SOLVED = "solved"
-    INFEASIBLE = "infeasible"  # the logic task with the learnt conflicts has no plan: proven
+    INFEASIBLE = "infeasible"  # no logic plan avoids the learnt conflicts (and blocked plans, see the reason)
     TIMEOUT = "timeout"
     LOGIC_FAILED = "logic_failed"  # the logic planner ended without a proof (budget, error)
 
@@ -190,9 +190,10 @@ def plan_gnpp(
             assert status is not None
             proof = ""
             if status is GnppStatus.INFEASIBLE:
-                proof = f" ({len(found)} learnt conflicts" + (
-                    f" and {blocked_plans} blocked plans prove it)" if blocked_plans else " prove it)"
-                )
+                proof = f" (every logic plan contains one of {len(found)} learnt conflicts"
+                if blocked_plans:  # not a proof: a whole plan is blocked after a solver, layout or replay failure
+                    proof += f" or is one of {blocked_plans} plans blocked after failing, which proves nothing"
+                proof += ")"
                 if wide:
                     proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
                         2 * lib.finger_inner, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))

@@ -109,16 +109,38 @@ class GroundProblem:
     #: atoms that must stay true (never re-added once lost): a state without one is a dead end
     required: frozenset[Atom] = frozenset()
     _by_action: dict[GroundAction, Operator] = field(init=False, repr=False, compare=False)
+    #: operator indices by one positive precondition each (the one fewest operators share): only the
+    #: operators triggered by an atom of the state can apply; ``_always``: those without a precondition
+    _triggered: dict[Atom, tuple[int, ...]] = field(init=False, repr=False, compare=False)
+    _always: tuple[int, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_by_action", {op.action: op for op in self.operators})
+        share: dict[Atom, int] = {}
+        for op in self.operators:
+            for a in op.pre:
+                share[a] = share.get(a, 0) + 1
+        triggered: dict[Atom, list[int]] = {}
+        always = []
+        for i, op in enumerate(self.operators):
+            if op.pre:
+                triggered.setdefault(min(op.pre, key=lambda a: (share[a], a)), []).append(i)
+            else:
+                always.append(i)
+        object.__setattr__(self, "_triggered", {a: tuple(ix) for a, ix in triggered.items()})
+        object.__setattr__(self, "_always", tuple(always))
 
     def is_goal(self, state: SymbolicState) -> bool:
         return self.goal <= state and self.goal_neg.isdisjoint(state)
 
     def successors(self, state: SymbolicState) -> list[tuple[GroundAction, SymbolicState]]:
         """Applicable actions and their successor states (dead ends, see ``required``, left out)."""
-        out = [(op.action, op.apply(state)) for op in self.operators if op.applicable(state)]
+        cand = list(self._always)
+        for atom in state:
+            cand.extend(self._triggered.get(atom, ()))
+        cand.sort()  # the operators' order, as a scan of all of them gives
+        ops = self.operators
+        out = [(ops[i].action, ops[i].apply(state)) for i in cand if ops[i].applicable(state)]
         if self.required:
             out = [(a, s) for a, s in out if self.required <= s]
         return out
