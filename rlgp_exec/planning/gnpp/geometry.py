@@ -77,7 +77,7 @@ def tool_upright(approach: tuple[float, float, float], closing: tuple[float, flo
     """R_tool_obj (3, 3) of an upright object held from above: its z axis the tool's -approach (the
     hand points down), its y axis the closing axis, x = y cross z."""
     z, y = -np.asarray(approach, float), np.asarray(closing, float)
-    return np.column_stack([np.cross(y, z), y, z])
+    return np.column_stack([np.cross(y, z), y, z]) + 0.0  # no -0.0 entries
 
 
 #: object frame in the PR2's tool frame for an upright object held from above (tool x = approach = down)

@@ -55,7 +55,8 @@ class TopIK:
     ) -> tuple[bool, FloatArray]:
         """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it (a
         mobile arm's base: q_ref's). ``fixed_base``: a mobile arm's base stays at q_ref's."""
-        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), fixed_base)
+        fixed_base = fixed_base and self.lib.mobile
+        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), *((True,) if fixed_base else ()))
         if key in self._memo:
             return self._memo[key]
         s, lbg, ubg = self._solver(arm)
@@ -86,9 +87,9 @@ def _held_of(lib: FactorLib, arm: str, q: FloatArray, w: FloatArray) -> FloatArr
     """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q."""
     R = (np.linalg.inv(lib.tool_T(arm, q)) @ lib.object_T(w))[:3]
     z, up = R[:3, 2], lib.upright(arm)
-    # the tilt about the fingers' (tool y) axis that turns the upright object's z onto z
-    theta = math.atan2(z[0], z[2]) - math.atan2(up[0, 2], up[2, 2])
-    theta = math.atan2(math.sin(theta), math.cos(theta))
+    a = up[:, 2]  # the upright object's z axis (the tool's -approach)
+    # the tilt about the fingers' (tool y) axis that turns a onto z (in the tool's x-z plane)
+    theta = math.atan2(a[2] * z[0] - a[0] * z[2], a[0] * z[0] + a[2] * z[2])
     ct, st = math.cos(theta), math.sin(theta)
     Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
     M = up.T @ Ry.T @ R[:3, :3]
