@@ -6,20 +6,21 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import casadi as ca
 import numpy as np
 
 from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
-from rlgp_exec.planning.gnpp.pntc import Var, moving, parents
+from rlgp_exec.planning.gnpp.pntc import Factor, Var, moving, parents
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["TopIK", "initial_guess", "rel_T"]
+__all__ = ["TopIK", "ik_seed", "initial_guess", "rel_T"]
 
 log = logging.getLogger(__name__)
 RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
+RING = 0.6  # [m] a mobile arm's IK also starts with its base this far from the target (see _ring_starts)
 
 
 class TopIK:
@@ -68,7 +69,10 @@ class TopIK:
             if fixed_base:
                 lo, hi = lo.copy(), hi.copy()
                 lo[:3] = hi[:3] = q_ref[:3]
-        starts = [q_ref, home] + [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
+        starts = [q_ref, home]
+        if self.lib.mobile and not fixed_base:  # the base on a ring round the point, facing it
+            starts += _ring_starts(home, pos, q_ref)
+        starts += [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
         out = (False, np.asarray(q_ref, float))
         for q0 in starts:
             res = s(x0=np.clip(q0, lo, hi), p=np.r_[pos, q_ref], lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
@@ -81,6 +85,19 @@ class TopIK:
                 break
         self._memo[key] = out
         return out
+
+
+def _ring_starts(home: FloatArray, pos: FloatArray, q_ref: FloatArray) -> list[FloatArray]:
+    """Starts (the arm's variable) for a mobile arm's IK towards ``pos``: the arm at ``home``'s posture,
+    the base ``RING`` m from pos at eight bearings, facing it, nearest to q_ref's base first (from a base
+    2 m away, facing elsewhere, the solver often stops at a fixture's footprint or out of reach)."""
+    out = []
+    for ang in np.linspace(-math.pi, math.pi, 8, endpoint=False):
+        q = home.copy()
+        q[:2] = pos[:2] + RING * np.array([math.cos(ang), math.sin(ang)])
+        q[2] = ang + math.pi
+        out.append(q)
+    return sorted(out, key=lambda q: float(np.linalg.norm(q[:2] - q_ref[:2])))
 
 
 def _held_of(lib: FactorLib, arm: str, q: FloatArray, w: FloatArray) -> FloatArray:
@@ -174,7 +191,7 @@ def initial_guess(
                 if prev.get(o) != p:  # picked now: the arm goes to the object's top
                     h = lib.objects[o].size[2]
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    q[p] = ik.solve(p, top, q[p])[1]
+                    q[p] = _keyframe_ik(lib, ik, p, top, q[p])[1]
                     held[o] = _held_of(lib, p, q[p], world[o])
                 out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
                 continue
@@ -196,7 +213,7 @@ def initial_guess(
                 arm = prev.get(o)
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    ok, q[arm] = ik.solve(arm, top, q[arm])
+                    ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm])
                     if ok and o in held:
                         # the object put down turned as the hand holds it: the Kin factor's yaw row
                         # (sine of the yaw difference) is stationary a quarter turn off, where a
@@ -214,6 +231,16 @@ def initial_guess(
     if missing:
         log.warning("no initial value for %s", missing[:5])
     return out
+
+
+def _keyframe_ik(lib: FactorLib, ik: TopIK, arm: str, top: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
+    """The IK of a keyframe: a mobile arm first with its base kept where it stands (as ``EqualBase`` will
+    keep it since the last end-move), else anywhere (the guess of a plan that needs another base)."""
+    if lib.mobile:
+        ok, q = ik.solve(arm, top, q_ref, fixed_base=True)
+        if ok:
+            return ok, q
+    return ik.solve(arm, top, q_ref)
 
 
 def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], arm: str) -> None:
@@ -238,3 +265,23 @@ def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], arm:
         if k > 0:
             for t in range(runs[k - 1][-1] + 1, run[0]):
                 out[Var("q", arm, t)][:3] = base
+
+
+def ik_seed(
+    lib: FactorLib, ik: TopIK, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]
+) -> dict[Var, FloatArray]:
+    """``guess`` with each kinematic switch's arm at a top-grasp IK of its object's guessed world pose
+    (and the held pose that matches): a start for a subgraph whose guess later solves have moved."""
+    out = dict(guess)
+    for f in factors:
+        if f.kind != "Kin":
+            continue
+        q_var, w_var, r_var = f.vars
+        o, arm = f.key[1], f.key[2]
+        w = np.asarray(out[w_var], float)
+        h = lib.objects[o].size[2]
+        ok, q = ik.solve(arm, w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)]), np.asarray(out[q_var], float))
+        if ok:
+            out[q_var] = q
+            out[r_var] = _held_of(lib, arm, q, w)
+    return out

@@ -34,7 +34,7 @@ from rlgp_exec.planning.gnpp.conflicts import (
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
-from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
+from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
 from rlgp_exec.planning.gnpp.solver import GraphSolver
@@ -130,6 +130,8 @@ def plan_gnpp(
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
+    if lib.mobile:
+        solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)
     db = None
     if opts is not None and opts.database:
         arm_idx = {int(i) for m in lib.arms for i in lib.arm_index(m)}

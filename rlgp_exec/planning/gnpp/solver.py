@@ -12,7 +12,7 @@ from __future__ import annotations
 import enum
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -89,6 +89,10 @@ class GraphSolver:
 
     def __init__(self, lib: FactorLib, restarts: int = 1) -> None:
         self.lib, self.restarts = lib, restarts
+        #: optional: (factors, guess) -> a start for ``refute``'s first try (the planner sets one for a
+        #: mobile arm: top-grasp IK at each kinematic switch; the HSR's folded start posture converges
+        #: to a top grasp from few random starts)
+        self.seeder: Callable[[Sequence[Factor], Mapping[Var, FloatArray]], Mapping[Var, FloatArray]] | None = None
         self.n_solves = 0
         self.solve_time_s = 0.0
         self._cache: dict[tuple, _Built] = {}
@@ -137,16 +141,18 @@ class GraphSolver:
     def _refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int, rng: np.random.Generator
     ) -> Mapping[Var, FloatArray] | None:
-        for _ in range(tries):
+        for k in range(tries):
             start = {v: self._jittered(v, guess[v], rng) for v in variables(factors)}
+            if k == 0 and self.seeder is not None:  # the first try from the seeder's start instead
+                start = dict(self.seeder(factors, {v: guess[v] for v in start}))
             res = self.solve(factors, start)
             if res.feasible:
                 return res.values
         return None
 
     def _jittered(self, v: Var, guess: FloatArray, rng: np.random.Generator) -> FloatArray:
-        """A random start for ``refute``: an arm's start posture perturbed (a mobile arm's base about
-        its guess: the start's base would rarely reach where the keyframe is), an object's guess."""
+        """A random start for ``refute``: an arm's start posture perturbed, an object's guess perturbed.
+        A mobile arm's base about its guess (its start base is rarely near the keyframe)."""
         if v.kind != "q":
             return np.asarray(guess, float) + rng.normal(0.0, 1.0, 4) * X_JITTER
         home = self.lib.home_q(v.owner)
