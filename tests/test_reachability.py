@@ -24,7 +24,7 @@ from rlgp_exec.reach import (
 )
 from rlgp_exec.reach.build import graph_meta
 from rlgp_exec.reach.ik import POS_TOL
-from rlgp_exec.reach.ompl_plan import plan_ompl
+from rlgp_exec.reach.ompl_plan import drive_base, drive_postures, plan_ompl
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
 
@@ -149,6 +149,22 @@ def test_ompl_plans_a_certified_path_round_the_wall(wall):
     )
     assert path is not None
     assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+
+
+def test_drive_base_goes_round_the_wall_with_the_arm_held(wall):
+    """drive_base (R-LGP's last-resort drive, GNPP's end-move): the base alone round the wall, the arm
+    held in one of drive_postures while it drives; every motion passes the exact check."""
+    _, _, graph, _, checker, _ = wall
+    left = [i for i in graph.alive if graph.X[i][0] < -0.4]
+    right = [i for i in graph.alive if graph.X[i][0] > 0.4]
+    q1, q2 = graph.Q[left[0]], graph.Q[right[0]]
+    rigid, postures = drive_postures(checker.model, q1, q2, empty_hand=True)
+    lo, hi = np.array([-2.0, -2.0]), np.array([2.0, 2.0])
+    path = drive_base(checker, q1, q2, rigid, postures, lo, hi, timeout=5.0)
+    assert path is not None and np.array_equal(path[0], q1) and np.array_equal(path[-1], q2)
+    assert not any(checker.edge_collides(a, b) for a, b in itertools.pairwise(path))
+    middle = path[1:-1]
+    assert np.allclose(middle[:, rigid], middle[0, rigid])  # one posture while the base drives
 
 
 def test_ompl_moves_every_joint_that_differs_and_accepts_an_end_a_hair_past_a_limit(wall):

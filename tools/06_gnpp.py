@@ -1,4 +1,4 @@
-"""GNPP on a PR2 scene: the conflicts it learns, the plan it finds, and what it cost.
+"""GNPP on a scene (PR2, or field_hsr: the mobile HSR): the conflicts it learns, the plan it finds, and what it cost.
 
     .venv/bin/python tools/06_gnpp.py [SCENE] [--variant gnpp_trn] [--logic internal|fd] [--blocks N]
                                       [--timeout S] [--seed K]

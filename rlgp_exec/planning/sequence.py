@@ -247,47 +247,23 @@ class SequenceGeometry:
         q2's base, and the arm takes q2's posture; each motion checked exactly. Postures tried: q2's
         own; folded (the home posture, empty hand only: the checks do not cover a held object against
         the robot's body); q1's with the lift up. None if all fail."""
-        from rlgp_exec.reach.ompl_plan import plan_ompl
+        from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
 
-        arm = np.array(self.model.group(self.model.manipulator().group), dtype=int)
-        torso = [self.model.index(n) for n in ("torso_lift_joint",) if n in self.model.joint_names]
-        rigid = np.array(sorted({*arm.tolist(), *torso}), dtype=int)
-        postures = [q2[rigid]]
-        if self.checker.attached is None:
-            home = self.model.home()[rigid]
-            for i, j in enumerate(rigid):
-                if j not in arm:  # the torso up
-                    home[i] = self.model.limits.upper[j] - 0.01
-            postures.append(home)
-        up = q1[rigid].copy()
-        for i, j in enumerate(rigid):
-            if self.model.joint_names[j].endswith("lift_joint"):
-                up[i] = max(up[i], self.model.limits.upper[j] - 0.01)
-        postures.append(up)
+        rigid, postures = drive_postures(self.model, q1, q2, empty_hand=self.checker.attached is None)
         X = self.graph.X[self.graph.alive]
         lo_xy, hi_xy = X[:, :2].min(axis=0) - 1.0, X[:, :2].max(axis=0) + 1.0
         verdicts: dict[bytes, bool] = {}
-        for posture in postures:
-            p1, p2 = q1.copy(), q2.copy()
-            p1[rigid], p2[rigid] = posture, posture
-            if not all(self._free(verdicts, q) for q in (p1, p2)):
-                continue
-            if not (self._free(verdicts, q1, p1) and self._free(verdicts, p2, q2)):
-                continue
-            if self._free(verdicts, p1, p2):
-                return np.array([q1, p1, p2, q2])
-            base = plan_ompl(
-                self.checker,
-                np.array(self.model.group("base")),
-                p1,
-                p2,
-                lo_xy,
-                hi_xy,
-                timeout=DRIVE_ROUND_TIMEOUT,
-            )
-            if base is not None:
-                return np.vstack([q1[None], base, q2[None]])
-        return None
+        return drive_base(
+            self.checker,
+            q1,
+            q2,
+            rigid,
+            postures,
+            lo_xy,
+            hi_xy,
+            DRIVE_ROUND_TIMEOUT,
+            lambda q, q_to=None: self._free(verdicts, q, q_to),
+        )
 
     def _shortcut(self, path: FloatArray, max_checks: int = 24) -> FloatArray:
         """Greedy shortcuts of a guided path: from each kept waypoint, the farthest later one reachable

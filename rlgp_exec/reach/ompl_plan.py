@@ -14,13 +14,14 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from rlgp_exec.reach.checker import CLEARANCE, WorldChecker
-from rlgp_exec.robot.model import FloatArray
+from rlgp_exec.robot.model import FloatArray, RobotModel
 
-__all__ = ["OMPL_PLANNERS", "plan_ompl"]
+__all__ = ["OMPL_PLANNERS", "drive_base", "drive_postures", "plan_ompl"]
 
 log = logging.getLogger(__name__)
 OMPL_PLANNERS = ("RRTConnect", "PRM")
@@ -126,6 +127,67 @@ def plan_ompl(
             return path
         log.info("OMPL %s path failed the exact edge check (attempt %d)", planner, attempt + 1)
     log.info("OMPL %s found no certified path in %.1f s", planner, timeout)
+    return None
+
+
+def drive_postures(
+    model: RobotModel, q1: FloatArray, q2: FloatArray, empty_hand: bool
+) -> tuple[FloatArray, list[FloatArray]]:
+    """(rigid joint indices, postures over them) for ``drive_base``, in the order to try: q2's own;
+    folded (the home posture, torso up; empty hand only: the checks do not cover a held object
+    against the robot's body); q1's with the lift up."""
+    arm = np.array(model.group(model.manipulator().group), dtype=int)
+    torso = [model.index(n) for n in ("torso_lift_joint",) if n in model.joint_names]
+    rigid = np.array(sorted({*arm.tolist(), *torso}), dtype=int)
+    postures = [q2[rigid]]
+    if empty_hand:
+        home = model.home()[rigid]
+        for i, j in enumerate(rigid):
+            if j not in arm:  # the torso up
+                home[i] = model.limits.upper[j] - 0.01
+        postures.append(home)
+    up = q1[rigid].copy()
+    for i, j in enumerate(rigid):
+        if model.joint_names[j].endswith("lift_joint"):
+            up[i] = max(up[i], model.limits.upper[j] - 0.01)
+    postures.append(up)
+    return rigid, postures
+
+
+def drive_base(
+    checker: WorldChecker,
+    q1: FloatArray,
+    q2: FloatArray,
+    rigid: FloatArray,
+    postures: Sequence[FloatArray],
+    lo_xy: FloatArray,
+    hi_xy: FloatArray,
+    timeout: float,
+    free: Callable[[FloatArray, FloatArray | None], bool] | None = None,
+) -> FloatArray | None:
+    """A path (n, nq) from q1 to q2 that moves the base with the joints ``rigid`` held in one posture:
+    q1 -> q1's base in the posture -> the base to q2's (straight if that motion is free, else OMPL on
+    the base's x, y, yaw alone) -> q2. ``postures`` (each (len(rigid),)) are tried in order; ``free(q,
+    None)`` says q is collision-free and ``free(q, q_to)`` the straight motion (default: the checker,
+    exactly). None if every posture fails (``timeout`` [s] per OMPL query)."""
+    if free is None:
+
+        def free(q: FloatArray, q_to: FloatArray | None = None) -> bool:
+            return not (checker(q) if q_to is None else checker.edge_collides(q, q_to))
+
+    base = np.array(checker.model.group("base"))
+    for posture in postures:
+        p1, p2 = q1.copy(), q2.copy()
+        p1[rigid], p2[rigid] = posture, posture
+        if not all(free(q, None) for q in (p1, p2)):
+            continue
+        if not (free(q1, p1) and free(p2, q2)):
+            continue
+        if free(p1, p2):
+            return np.array([q1, p1, p2, q2])
+        path = plan_ompl(checker, base, p1, p2, lo_xy, hi_xy, timeout=timeout)
+        if path is not None:
+            return np.vstack([q1[None], path, q2[None]])
     return None
 
 

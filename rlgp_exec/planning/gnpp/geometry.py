@@ -1,9 +1,16 @@
 """The constraint functions h_b of the GNPP graph-NLP, one CasADi ``Function`` per kind and arguments.
 
-Continuous variables (paper Sec. IV-A): an arm's joints ``q`` (7,) [rad] (base and torso fixed at the
-scene's start), and an object's pose ``x`` (4,) = [x, y, z, yaw] [m, rad] relative to its parent: the
-world when it rests (on a fixture, a region or another object), the holding arm's tool frame when
-held (then the object's z axis is the tool's -approach axis, see ``T_TOOL_UPRIGHT``).
+Continuous variables (paper Sec. IV-A): an arm's configuration ``q``, and an object's pose ``x`` (4,) =
+[x, y, z, yaw] [m, rad] relative to its parent: the world when it rests (on a fixture, a region or
+another object), the holding arm's tool frame when held (then the object's z axis is the tool's
+-approach axis, see ``tool_upright``).
+
+``q`` is the arm's joints [rad] (the PR2: 7 per arm, base and torso fixed at the scene's start) or, for a
+robot with one arm on a mobile base (the HSR: the paper's mobile manipulator of the Field scenario),
+``[x, y, yaw]`` of the base in the world frame [m, rad] followed by the arm's joints (the HSR: lift [m]
+and four revolute joints; the torso mimics the lift). Its shapes: the PR2's hand-placed spheres
+(probed in PyBullet), else spheres from the model: the arm links' collision cylinders, the wrist, the
+hand's and the open fingers' collision boxes, the base footprint circles (``nlp.hand``, ``nlp.factors``).
 
 Each function is built once from the shared factors (``planning.nlp.factors``) and cached, so an NLP
 of any subgraph is a composition of cached functions (their derivatives are cached too).
@@ -17,9 +24,19 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import pybullet as p
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.nlp.factors import Rows, points_apart, points_box_clear, upright_match, yaw_pose
+from rlgp_exec.planning.nlp.factors import (
+    RobotSymbols,
+    Rows,
+    footprint_clear,
+    points_apart,
+    points_box_clear,
+    upright_match,
+    yaw_pose,
+)
+from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, link_box_spheres, self_clear
 from rlgp_exec.planning.nlp.keyframes import _target_surface
 from rlgp_exec.reach import nominal_q
 from rlgp_exec.reach.ik import box_sdf
@@ -27,7 +44,17 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import Box, fixture_boxes
 
-__all__ = ["GRASP_DEPTH", "MAX_TILT", "PLACE_LIFT", "T_TOOL_UPRIGHT", "FactorFn", "FactorLib"]
+__all__ = [
+    "FLOOR",
+    "GRASP_DEPTH",
+    "MAX_TILT",
+    "PLACE_LIFT",
+    "T_TOOL_UPRIGHT",
+    "ArmShapes",
+    "FactorFn",
+    "FactorLib",
+    "tool_upright",
+]
 
 log = logging.getLogger(__name__)
 
@@ -42,8 +69,33 @@ FINGER_INNER = 0.0375
 FINGER_CLEAR = 0.003  # [m] an object let go keeps this much from the open fingers (replay tolerance 2 mm)
 FINGER_UP = 0.025  # [m] the second point of each open finger, this far above its tip (PR2 finger links)
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
-#: object frame in the tool frame for an upright object held from above (tool x = approach = down)
-T_TOOL_UPRIGHT = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+FLOOR = 3.0  # [m] a mobile base's x and y stay within +-FLOOR of the world origin (as objects' poses do)
+BASE_MARGIN = 0.02  # [m] a mobile base keeps this far from the fixtures' footprints (as R-LGP's keyframes)
+
+
+def tool_upright(approach: tuple[float, float, float], closing: tuple[float, float, float]) -> FloatArray:
+    """R_tool_obj (3, 3) of an upright object held from above: its z axis the tool's -approach (the
+    hand points down), its y axis the closing axis, x = y cross z."""
+    z, y = -np.asarray(approach, float), np.asarray(closing, float)
+    return np.column_stack([np.cross(y, z), y, z]) + 0.0  # no -0.0 entries
+
+
+#: object frame in the PR2's tool frame for an upright object held from above (tool x = approach = down)
+T_TOOL_UPRIGHT = tool_upright((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+
+@dataclass(frozen=True)
+class ArmShapes:
+    """An arm's collision spheres: ``fn`` maps its variable q to (centres (3, K) world [m], T_tool (4, 4));
+    the index tuples say which spheres each collision factor uses."""
+
+    fn: ca.Function
+    radii: tuple[float, ...]
+    fixture: tuple[int, ...]  # kept clear of the fixtures (ColFix)
+    trunk: tuple[int, ...]  # kept clear of the PR2's torso box (ColFix)
+    arm: tuple[int, ...]  # the arm up to the wrist, clear of resting objects (ColAO)
+    hand: tuple[int, ...]  # the hand and open fingers, clear of resting objects (ColHO)
+    other_arm: tuple[int, ...]  # against the other arm's same set (ColAA)
 
 
 @dataclass(frozen=True)
@@ -53,7 +105,7 @@ class FactorFn:
     upper: FloatArray
 
 
-def _rel_pose(r: ca.SX) -> ca.SX:
+def _rel_pose(r: ca.SX, upright: FloatArray) -> ca.SX:
     """T_tool_obj of the held pose r = [d, s, psi, theta]: the object's centre d below the tool point
     along the object's axis, shifted s along the fingers (tool y), turned psi about its own axis and
     tilted theta about the fingers' axis (a leaning hand reaches further across a table)."""
@@ -61,7 +113,7 @@ def _rel_pose(r: ca.SX) -> ca.SX:
     Rz = ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
     ct, st = ca.cos(r[3]), ca.sin(r[3])
     Ry = ca.vertcat(ca.horzcat(ct, 0, st), ca.horzcat(0, 1, 0), ca.horzcat(-st, 0, ct))
-    R = Ry @ ca.DM(T_TOOL_UPRIGHT) @ Rz
+    R = Ry @ ca.DM(upright) @ Rz
     T = ca.SX.eye(4)
     T[:3, :3] = R
     T[:3, 3] = -r[0] * R[:, 2] + r[1] * ca.DM([0.0, 1.0, 0.0])
@@ -73,15 +125,21 @@ _YAW_POSE = ca.Function("yaw_pose", [_W], [yaw_pose(_W)])
 
 
 class FactorLib:
-    """The scene's factor functions and variable bounds (PR2: both arms; base and torso fixed)."""
+    """The scene's factor functions and variable bounds (PR2: both arms, base and torso fixed; a robot
+    with one arm: the base is part of the arm's variable, see ``mobile``)."""
 
     def __init__(self, model: RobotModel, scene: Scene) -> None:
         self.model, self.scene = model, scene
         self.q_nominal = nominal_q(model, scene)
         self.arms = tuple(m.name for m in model.config.manipulators)
+        #: the base belongs to the arm's configuration variable (one arm: the paper's mobile manipulator;
+        #: two arms on one base would share it, coupling them at every step: the PR2 keeps it fixed)
+        self.mobile = len(self.arms) == 1
+        self.pr2 = model.config.name == "pr2"  # its hand-placed spheres and joint rules (probed in PyBullet)
+        self._probe: tuple | None = None  # (finger spheres, hand spheres, body boxes) from PyBullet
         self.objects = {o.name: o for o in scene.objects}
         self._fns: dict[tuple, FactorFn] = {}
-        self._arm: dict[str, tuple] = {}
+        self._arm: dict[str, ArmShapes] = {}
         self.fixture_boxes = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
         self.body_boxes = self._body_boxes()
 
@@ -100,13 +158,22 @@ class FactorLib:
 
     # ----------------------------------------------------------------- variables
     def arm_index(self, arm: str) -> FloatArray:
-        return np.array(self.model.group(self.model.manipulator(arm).group), dtype=int)
+        """The indices in the full q of the arm's variable (base first when ``mobile``)."""
+        group = self.model.group(self.model.manipulator(arm).group)
+        base = self.model.group("base") if self.mobile else ()
+        return np.array([*base, *group], dtype=int)
+
+    def dim(self, kind: str, owner: str) -> int:
+        """The size of a variable: an arm's q (``arm_index``) or an object's pose (4)."""
+        return len(self.arm_index(owner)) if kind == "q" else 4
 
     def var_bounds(self, kind: str, owner: str) -> tuple[FloatArray, FloatArray]:
         if kind == "q":
             idx = self.arm_index(owner)
             lo = np.maximum(self.model.limits.lower[idx], -2 * math.pi)
             hi = np.minimum(self.model.limits.upper[idx], 2 * math.pi)
+            if self.mobile:  # base x, y on the floor
+                lo[:2], hi[:2] = -FLOOR, FLOOR
             return lo, hi
         # an object's x is a world pose [x, y, z, yaw] or a held pose [d, s, psi, theta]: bounds for both
         return np.array([-3.0, -3.0, -4 * math.pi, -4 * math.pi]), np.array([3.0, 3.0, 4 * math.pi, 4 * math.pi])
@@ -141,12 +208,47 @@ class FactorLib:
         h = self.objects[obj].size[2]
         return np.array([h / 2 - min(GRASP_DEPTH, h / 2), 0.0, 0.0, 0.0])
 
+    def upright(self, arm: str) -> FloatArray:
+        """R_tool_obj (3, 3) of an upright object held from above by ``arm`` (``tool_upright``)."""
+        man = self.model.manipulator(arm)
+        return tool_upright(man.approach, man.closing)
+
+    def _probed(self) -> tuple:
+        """(finger spheres, hand spheres (tool frame), body boxes (base_link frame)) read from the
+        robot's collision shapes in PyBullet at the start configuration, hand open (not for the PR2)."""
+        if self._probe is None:
+            from rlgp_exec.robot.pybullet_body import PyBulletRobot
+
+            client = p.connect(p.DIRECT)
+            try:
+                robot = PyBulletRobot(self.model, client)
+                man = self.model.manipulator()
+                fingers = link_box_spheres(robot, self.model, self.q_nominal, [n for n in man.links if "finger" in n])
+                hand = link_box_spheres(robot, self.model, self.q_nominal, [n for n in man.links if "finger" not in n])
+                body = body_obstacles(robot, self.model, self.q_nominal)
+            finally:
+                p.disconnect(client)
+            self._probe = (fingers, hand, body)
+        return self._probe
+
+    @property
+    def finger_inner(self) -> float:
+        """[m] the open fingers' inner faces from the tool point along the closing axis, where they reach
+        below an object's top (held ``GRASP_DEPTH`` deep): the PR2's probed ``FINGER_INNER``, else the
+        nearest finger sphere to the axis among those that reach that deep."""
+        if self.pr2:
+            return FINGER_INNER
+        man = self.model.manipulator()
+        a, c = np.asarray(man.approach, float), np.asarray(man.closing, float)
+        deep = [abs(float(x @ c)) - r for x, r in self._probed()[0] if float(x @ a) + r > -GRASP_DEPTH]
+        return min(deep) if deep else 0.0
+
     def grasp_offset_max(self, obj: str) -> float:
         """How far [m] the object's centre may sit off the tool point along the closing axis: within the
         finger pads, and so that the open fingers (``FINGER_INNER``) stay ``FINGER_CLEAR`` off its faces
         once it is let go (the hand lifts off past it). Negative: wider than the open gripper."""
         half = min(self.objects[obj].size[:2]) / 2
-        return min(half - 0.015, FINGER_INNER - half - FINGER_CLEAR)
+        return min(half - 0.015, self.finger_inner - half - FINGER_CLEAR)
 
     def too_wide(self) -> dict[str, float]:
         """Objects the open gripper cannot close round (and let go) without touching: name -> width [m]."""
@@ -156,35 +258,66 @@ class FactorLib:
         return _target_surface(self.scene, support)
 
     # ----------------------------------------------------------------- the arm's shapes
-    def arm_shapes(self, arm: str) -> tuple[ca.Function, list[float], int]:
-        """(q (7,) -> (points (3, K) world, T_tool), radii, n_body): elbow, forearm, wrist, hand, two
-        fingers, the upper arm (the first ``n_body``: against objects and fixtures too), then the tool
-        point (arm against arm only), then two points up the fingers (against objects, ``ColHO``)."""
+    def arm_shapes(self, arm: str) -> ArmShapes:
+        """The arm's spheres (see ``ArmShapes``), built once per arm."""
         if arm not in self._arm:
-            man = self.model.manipulator(arm)
-            names = [self.model.joint_names[i] for i in self.model.group(man.group)]
-            shoulder = next(n for n in names if "upper_arm_roll" in n)
-            elbow = next(n for n in names if "elbow_flex" in n)
-            wrist = next(n for n in names if "wrist_flex" in n)
-            q7 = ca.SX.sym("q", len(names))
-            q = ca.SX(ca.DM(self.q_nominal))
-            for k, i in enumerate(self.arm_index(arm)):
-                q[int(i)] = q7[k]
-            Ts, Te, Tw, Tt = self.model.casadi_fk((shoulder, elbow, wrist, man.tool_frame))(q)
-            ps, pe, pw, pt = Ts[:3, 3], Te[:3, 3], Tw[:3, 3], Tt[:3, 3]
-            closing = Tt[:3, :3] @ ca.DM(man.closing)
-            approach = Tt[:3, :3] @ ca.DM(man.approach)
-            pts = [pe, 0.5 * (pe + pw), pw, pt + 0.5 * (pw - pt), pt + 0.049 * closing, pt - 0.049 * closing]
-            pts += [0.5 * (ps + pe), pt]
-            # the open fingers widen above their tips (probed in the PyBullet PR2: the inner faces at
-            # FINGER_INNER, the outer ones at 6 cm at the tip, 7 cm 3 cm up); between the tips and the
-            # hand sphere a neighbouring block met them in the replay
-            up = FINGER_UP * approach
-            pts += [pt + 0.056 * closing - up, pt - 0.056 * closing - up]
-            radii = [0.07, 0.06, 0.06, 0.045, 0.011, 0.011, 0.08, 0.035, 0.016, 0.016]
-            fn = ca.Function(f"shapes_{arm}", [q7], [ca.horzcat(*pts), Tt])
-            self._arm[arm] = (fn, radii, 7)
+            self._arm[arm] = self._pr2_shapes(arm) if self.pr2 else self._model_shapes(arm)
         return self._arm[arm]
+
+    def _pr2_shapes(self, arm: str) -> ArmShapes:
+        """The PR2's: elbow, forearm, wrist, hand, two fingers, the upper arm (the first 7: against
+        fixtures; the first 4: against the torso), the tool point (arm against arm only), then two points
+        up the fingers (against objects, ``ColHO``)."""
+        man = self.model.manipulator(arm)
+        names = [self.model.joint_names[i] for i in self.model.group(man.group)]
+        shoulder = next(n for n in names if "upper_arm_roll" in n)
+        elbow = next(n for n in names if "elbow_flex" in n)
+        wrist = next(n for n in names if "wrist_flex" in n)
+        q7 = ca.SX.sym("q", len(self.arm_index(arm)))
+        q = ca.SX(ca.DM(self.q_nominal))
+        for k, i in enumerate(self.arm_index(arm)):
+            q[int(i)] = q7[k]
+        Ts, Te, Tw, Tt = self.model.casadi_fk((shoulder, elbow, wrist, man.tool_frame))(q)
+        ps, pe, pw, pt = Ts[:3, 3], Te[:3, 3], Tw[:3, 3], Tt[:3, 3]
+        closing = Tt[:3, :3] @ ca.DM(man.closing)
+        approach = Tt[:3, :3] @ ca.DM(man.approach)
+        pts = [pe, 0.5 * (pe + pw), pw, pt + 0.5 * (pw - pt), pt + 0.049 * closing, pt - 0.049 * closing]
+        pts += [0.5 * (ps + pe), pt]
+        # the open fingers widen above their tips (probed in the PyBullet PR2: the inner faces at
+        # FINGER_INNER, the outer ones at 6 cm at the tip, 7 cm 3 cm up); between the tips and the
+        # hand sphere a neighbouring block met them in the replay
+        up = FINGER_UP * approach
+        pts += [pt + 0.056 * closing - up, pt - 0.056 * closing - up]
+        radii = (0.07, 0.06, 0.06, 0.045, 0.011, 0.011, 0.08, 0.035, 0.016, 0.016)
+        fn = ca.Function(f"shapes_{arm}", [q7], [ca.horzcat(*pts), Tt])
+        return ArmShapes(fn, radii, tuple(range(7)), (0, 1, 2, 3), (0, 1, 2, 6), (3, 4, 5, 8, 9), (0, 1, 2, 3, 6, 7))
+
+    def _model_shapes(self, arm: str) -> ArmShapes:
+        """From the model: spheres on the arm links' collision cylinders and at the wrist joint (the arm),
+        and spheres covering the hand's and the open fingers' collision boxes (the hand); all of them
+        against the fixtures. (The base footprint and the arm against its own base: ``_f_ColFix``.)"""
+        man = self.model.manipulator(arm)
+        z = ca.SX.sym("q", len(self.arm_index(arm)))
+        rs = self._symbols(arm, z)
+        links = arm_link_spheres(self.model, arm)
+        wrist = next(n for n in (self.model.joint_names[i] for i in self.model.group(man.group)) if "wrist_flex" in n)
+        frames = tuple(dict.fromkeys([*(f for f, _, _ in links), wrist]))
+        Ts = self.model.casadi_fk(frames)(rs.q)
+        Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
+        pts = [Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3] for f, c, _ in links] + [Ts[wrist][:3, 3]]
+        radii = [r for _, _, r in links] + [0.045]
+        n_arm = len(pts)
+        fingers, hand, _ = self._probed()
+        for c, r in [*hand, *fingers]:
+            pts.append(rs.T_tool[:3, :3] @ ca.DM(c) + rs.T_tool[:3, 3])
+            radii.append(r)
+        fn = ca.Function(f"shapes_{arm}", [z], [ca.horzcat(*pts), rs.T_tool])
+        every, up_to_wrist = tuple(range(len(pts))), tuple(range(n_arm))
+        return ArmShapes(fn, tuple(radii), every, (), up_to_wrist, tuple(range(n_arm, len(pts))), every)
+
+    def _symbols(self, arm: str, z: ca.SX) -> RobotSymbols:
+        """The robot at the mobile arm's variable z = [x, y, yaw, arm joints] (``nlp.factors``)."""
+        return RobotSymbols(self.model, self.q_nominal, arm, z)
 
     # ----------------------------------------------------------------- factor functions
     def factor(self, key: tuple) -> FactorFn:
@@ -247,10 +380,9 @@ class FactorLib:
 
     def _f_Kin(self, obj: str, arm: str):
         """The kinematic switch: the object's world pose w equals tool(q) * held pose r."""
-        fn, _, _ = self.arm_shapes(arm)
         q, w, r, rows = ca.SX.sym("q", len(self.arm_index(arm))), ca.SX.sym("w", 4), ca.SX.sym("r", 4), Rows.empty()
-        T_tool = fn(q)[1]
-        upright_match(T_tool @ _rel_pose(r), w, rows)
+        T_tool = self.arm_shapes(arm).fn(q)[1]
+        upright_match(T_tool @ _rel_pose(r, self.upright(arm)), w, rows)
         return [q, w, r], rows
 
     def _f_Equal(self, dim: str):
@@ -260,58 +392,73 @@ class FactorLib:
             rows.add(a[i] - b[i], 0.0, 0.0)
         return [a, b], rows
 
+    def _f_EqualBase(self, arm: str):
+        """A mobile arm's base pose [x, y, yaw] the same at two time steps (the arm joints free)."""
+        n = len(self.arm_index(arm))
+        a, b, rows = ca.SX.sym("a", n), ca.SX.sym("b", n), Rows.empty()
+        for i in range(3):
+            rows.add(a[i] - b[i], 0.0, 0.0)
+        return [a, b], rows
+
     def _f_ColFix(self, arm: str):
-        fn, radii, nb = self.arm_shapes(arm)
+        sh = self.arm_shapes(arm)
         q, rows = ca.SX.sym("q", len(self.arm_index(arm))), Rows.empty()
-        P = fn(q)[0]
-        # the arm's own fingers: a wrist flexed further than this folds them onto the forearm (PR2)
-        names = [self.model.joint_names[i] for i in self.arm_index(arm)]
-        for k, n in enumerate(names):
-            if "wrist_flex" in n:
-                rows.add(q[k], WRIST_FLEX_MIN, ca.inf)
-            if "shoulder_pan" in n:  # an arm crossing to the far side hits the torso with its upper arm
-                side = -1.0 if n.startswith("r_") else 1.0
-                rows.add(side * q[k], -PAN_CROSS_MAX, ca.inf)
+        P = sh.fn(q)[0]
+        if self.pr2:  # the arm's own fingers: a wrist flexed further than this folds them onto the forearm
+            names = [self.model.joint_names[i] for i in self.arm_index(arm)]
+            for k, n in enumerate(names):
+                if "wrist_flex" in n:
+                    rows.add(q[k], WRIST_FLEX_MIN, ca.inf)
+                if "shoulder_pan" in n:  # an arm crossing to the far side hits the torso with its upper arm
+                    side = -1.0 if n.startswith("r_") else 1.0
+                    rows.add(side * q[k], -PAN_CROSS_MAX, ca.inf)
         for b in self.fixture_boxes:
             Tinv = np.linalg.inv(b.T)
-            for k in range(nb):
+            for k in sh.fixture:
                 pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
-                rows.add(box_sdf(pl, np.asarray(b.size) / 2), radii[k], ca.inf)
+                rows.add(box_sdf(pl, np.asarray(b.size) / 2), sh.radii[k], ca.inf)
         for b in self.body_boxes:  # the elbow, forearm, wrist and hand clear of the trunk
             Tinv = np.linalg.inv(b.T)
-            for k in range(4):
+            for k in sh.trunk:
                 pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
-                rows.add(box_sdf(pl, np.asarray(b.size) / 2), radii[k], ca.inf)
+                rows.add(box_sdf(pl, np.asarray(b.size) / 2), sh.radii[k], ca.inf)
+        if self.mobile:  # the base footprint off the fixtures, the arm off its own base
+            rs = self._symbols(arm, q)
+            rects = [(np.asarray(fx.T), np.asarray(fx.size)) for fx in self.scene.fixtures]
+            footprint_clear(rs, rects, rows, margin=BASE_MARGIN)
+            self_clear(self.model, rs.q, arm_link_spheres(self.model, arm), self._probed()[2], rows)
         return [q], rows
 
     def _f_ColAA(self, arm_a: str, arm_b: str):
-        fa, ra, _ = self.arm_shapes(arm_a)
-        fb, rb, _ = self.arm_shapes(arm_b)
+        sa, sb = self.arm_shapes(arm_a), self.arm_shapes(arm_b)
         qa, qb, rows = (
             ca.SX.sym("qa", len(self.arm_index(arm_a))),
             ca.SX.sym("qb", len(self.arm_index(arm_b))),
             Rows.empty(),
         )
-        Pa, Pb = fa(qa)[0], fb(qb)[0]
-        ia = ib = [0, 1, 2, 3, 6, 7]  # elbow, forearm, wrist, hand, upper arm, tool (covering the fingers)
-        points_apart([Pa[:, k] for k in ia], [ra[k] for k in ia], [Pb[:, k] for k in ib], [rb[k] for k in ib], rows)
+        Pa, Pb = sa.fn(qa)[0], sb.fn(qb)[0]
+        ia, ib = sa.other_arm, sb.other_arm  # PR2: elbow, forearm, wrist, hand, upper arm, tool (covering the fingers)
+        points_apart(
+            [Pa[:, k] for k in ia], [sa.radii[k] for k in ia], [Pb[:, k] for k in ib], [sb.radii[k] for k in ib], rows
+        )
         return [qa, qb], rows
 
-    def _arm_object(self, arm: str, obj: str, points: tuple[int, ...]):
-        fn, radii, _ = self.arm_shapes(arm)
+    def _arm_object(self, arm: str, obj: str, hand: bool):
+        sh = self.arm_shapes(arm)
+        points = sh.hand if hand else sh.arm
         q, w, rows = ca.SX.sym("q", len(self.arm_index(arm))), ca.SX.sym("w", 4), Rows.empty()
-        P = fn(q)[0]
+        P = sh.fn(q)[0]
         half = np.asarray(self.objects[obj].size) / 2
-        points_box_clear([P[:, k] for k in points], [radii[k] for k in points], w, half, rows)
+        points_box_clear([P[:, k] for k in points], [sh.radii[k] for k in points], w, half, rows)
         return [q, w], rows
 
     def _f_ColAO(self, arm: str, obj: str):
         """The arm (upper arm, elbow, forearm, wrist) clear of a resting object."""
-        return self._arm_object(arm, obj, (0, 1, 2, 6))
+        return self._arm_object(arm, obj, hand=False)
 
     def _f_ColHO(self, arm: str, obj: str):
         """The hand and fingers clear of a resting object (not the one the hand has just let go)."""
-        return self._arm_object(arm, obj, (3, 4, 5, 8, 9))
+        return self._arm_object(arm, obj, hand=True)
 
     def _f_ColOO(self, obj_a: str, obj_b: str):
         """Two upright boxes apart: a's centre outside b's box grown by a's footprint radius sideways and
@@ -324,12 +471,16 @@ class FactorLib:
         return [wa, wb], rows
 
     # ----------------------------------------------------------------- numeric helpers
-    def tool_T(self, arm: str, q7: FloatArray) -> FloatArray:
-        return np.asarray(self.arm_shapes(arm)[0](q7)[1])
+    def tool_T(self, arm: str, q: FloatArray) -> FloatArray:
+        """T_world_tool (4, 4) at the arm's variable q."""
+        return np.asarray(self.arm_shapes(arm).fn(q)[1])
 
     def object_T(self, w: FloatArray) -> FloatArray:
         """The (4, 4) transform of an upright pose w = [x, y, z, yaw]."""
         return np.asarray(_YAW_POSE(w))
 
 
-FACTOR_KINDS = ("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
+FACTOR_KINDS = (
+    *("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "EqualBase"),
+    *("ColFix", "ColAA", "ColAO", "ColHO", "ColOO"),
+)

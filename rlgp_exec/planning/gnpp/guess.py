@@ -6,25 +6,27 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import casadi as ca
 import numpy as np
 
-from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, T_TOOL_UPRIGHT, FactorLib
-from rlgp_exec.planning.gnpp.pntc import Var, parents
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
+from rlgp_exec.planning.gnpp.pntc import Factor, Var, moving, parents
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["TopIK", "initial_guess"]
+__all__ = ["TopIK", "ik_seed", "initial_guess", "rel_T"]
 
 log = logging.getLogger(__name__)
 RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
+RING = 0.6  # [m] a mobile arm's IK also starts with its base this far from the target (see _ring_starts)
 
 
 class TopIK:
-    """q (7,) for one arm with the tool at a point, approach straight down, fingers horizontal,
-    the arm clear of the fixtures; closest to a reference posture. Also used to lift a hand."""
+    """q (the arm's variable, ``FactorLib.arm_index``) for one arm with the tool at a point, approach
+    straight down, fingers horizontal, the arm clear of the fixtures (``ColFix``; a mobile base's
+    footprint too); closest to a reference posture. Also used to lift a hand (the base held)."""
 
     def __init__(self, lib: FactorLib) -> None:
         self.lib = lib
@@ -37,7 +39,7 @@ class TopIK:
             man = self.lib.model.manipulator(arm)
             n = len(self.lib.arm_index(arm))
             q, p = ca.SX.sym("q", n), ca.SX.sym("p", 3 + n)
-            T = self.lib.arm_shapes(arm)[0](q)[1]
+            T = self.lib.arm_shapes(arm).fn(q)[1]
             a = T[:3, :3] @ ca.DM(man.approach)
             c = T[:3, :3] @ ca.DM(man.closing)
             col = self.lib.factor(("ColFix", arm))
@@ -49,16 +51,28 @@ class TopIK:
             self._solvers[arm] = (s, lbg, ubg)
         return self._solvers[arm]
 
-    def solve(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
-        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it."""
-        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2))
+    def solve(
+        self, arm: str, pos: FloatArray, q_ref: FloatArray, fixed_base: bool = False
+    ) -> tuple[bool, FloatArray]:
+        """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it (a
+        mobile arm's base: q_ref's). ``fixed_base``: a mobile arm's base stays at q_ref's."""
+        fixed_base = fixed_base and self.lib.mobile
+        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), *((True,) if fixed_base else ()))
         if key in self._memo:
             return self._memo[key]
         s, lbg, ubg = self._solver(arm)
         lo, hi = self.lib.var_bounds("q", arm)
         rng = np.random.default_rng(7)
         home = self.lib.home_q(arm)
-        starts = [q_ref, home] + [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
+        if self.lib.mobile:
+            home[:3] = q_ref[:3]
+            if fixed_base:
+                lo, hi = lo.copy(), hi.copy()
+                lo[:3] = hi[:3] = q_ref[:3]
+        starts = [q_ref, home]
+        if self.lib.mobile and not fixed_base:  # the base on a ring round the point, facing it
+            starts += _ring_starts(home, pos, q_ref)
+        starts += [home + rng.normal(0.0, 0.6, home.size) for _ in range(RESTARTS)]
         out = (False, np.asarray(q_ref, float))
         for q0 in starts:
             res = s(x0=np.clip(q0, lo, hi), p=np.r_[pos, q_ref], lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
@@ -73,26 +87,41 @@ class TopIK:
         return out
 
 
-def _held_of(lib: FactorLib, arm: str, q7: FloatArray, w: FloatArray) -> FloatArray:
-    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q7."""
-    R = (np.linalg.inv(lib.tool_T(arm, q7)) @ lib.object_T(w))[:3]
-    z = R[:3, 2]
-    theta = math.atan2(z[2], -z[0])
+def _ring_starts(home: FloatArray, pos: FloatArray, q_ref: FloatArray) -> list[FloatArray]:
+    """Starts (the arm's variable) for a mobile arm's IK towards ``pos``: the arm at ``home``'s posture,
+    the base ``RING`` m from pos at eight bearings, facing it, nearest to q_ref's base first (from a base
+    2 m away, facing elsewhere, the solver often stops at a fixture's footprint or out of reach)."""
+    out = []
+    for ang in np.linspace(-math.pi, math.pi, 8, endpoint=False):
+        q = home.copy()
+        q[:2] = pos[:2] + RING * np.array([math.cos(ang), math.sin(ang)])
+        q[2] = ang + math.pi
+        out.append(q)
+    return sorted(out, key=lambda q: float(np.linalg.norm(q[:2] - q_ref[:2])))
+
+
+def _held_of(lib: FactorLib, arm: str, q: FloatArray, w: FloatArray) -> FloatArray:
+    """The held pose r = [d, s, psi, theta] of an object at world pose w in the hand at q."""
+    R = (np.linalg.inv(lib.tool_T(arm, q)) @ lib.object_T(w))[:3]
+    z, up = R[:3, 2], lib.upright(arm)
+    a = up[:, 2]  # the upright object's z axis (the tool's -approach)
+    # the tilt about the fingers' (tool y) axis that turns a onto z (in the tool's x-z plane)
+    theta = math.atan2(a[2] * z[0] - a[0] * z[2], a[0] * z[0] + a[2] * z[2])
     ct, st = math.cos(theta), math.sin(theta)
     Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
-    M = T_TOOL_UPRIGHT.T @ Ry.T @ R[:3, :3]
+    M = up.T @ Ry.T @ R[:3, :3]
     psi = math.atan2(M[1, 0], M[0, 0])
     p = R[:3, 3]
     return np.array([-float(p @ z), float(p[1]), psi, theta])
 
 
-def _rel_T(r: FloatArray) -> FloatArray:
+def rel_T(r: FloatArray, upright: FloatArray) -> FloatArray:
     """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``geometry._rel_pose``, numerically)."""
     c, s = math.cos(r[2]), math.sin(r[2])
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     ct, st = math.cos(r[3]), math.sin(r[3])
     Ry = np.array([[ct, 0.0, st], [0.0, 1.0, 0.0], [-st, 0.0, ct]])
-    R = Ry @ T_TOOL_UPRIGHT @ Rz
+    R = Ry @ upright @ Rz
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = -r[0] * R[:, 2] + r[1] * np.array([0.0, 1.0, 0.0])
@@ -162,7 +191,7 @@ def initial_guess(
                 if prev.get(o) != p:  # picked now: the arm goes to the object's top
                     h = lib.objects[o].size[2]
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    q[p] = ik.solve(p, top, q[p])[1]
+                    q[p] = _keyframe_ik(lib, ik, p, top, q[p])[1]
                     held[o] = _held_of(lib, p, q[p], world[o])
                 out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
                 continue
@@ -184,18 +213,75 @@ def initial_guess(
                 arm = prev.get(o)
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    ok, q[arm] = ik.solve(arm, top, q[arm])
+                    ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm])
                     if ok and o in held:
                         # the object put down turned as the hand holds it: the Kin factor's yaw row
                         # (sine of the yaw difference) is stationary a quarter turn off, where a
                         # start with the pose's old yaw could leave it (a false conflict)
-                        T = lib.tool_T(arm, q[arm]) @ _rel_T(held[o])
+                        T = lib.tool_T(arm, q[arm]) @ rel_T(held[o], lib.upright(arm))
                         world[o][3] = math.atan2(T[1, 0], T[0, 0])
             out[Var("x", o, t)] = world[o].copy()
         for m in arms:
             out[Var("q", m, t)] = q[m].copy()
         prev = par
+    if lib.mobile:
+        for m in arms:
+            _hold_base(out, states, m)
     missing = [v for v in variables if v not in out]
     if missing:
         log.warning("no initial value for %s", missing[:5])
+    return out
+
+
+def _keyframe_ik(lib: FactorLib, ik: TopIK, arm: str, top: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
+    """The IK of a keyframe: a mobile arm first with its base kept where it stands (as ``EqualBase`` will
+    keep it since the last end-move), else anywhere (the guess of a plan that needs another base)."""
+    if lib.mobile:
+        ok, q = ik.solve(arm, top, q_ref, fixed_base=True)
+        if ok:
+            return ok, q
+    return ik.solve(arm, top, q_ref)
+
+
+def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], arm: str) -> None:
+    """A mobile arm's base in ``out`` made constant over each stretch of states in which it is not moving
+    (as ``EqualBase`` will hold it): the base of the stretch's first keyframe (the IK chose it to reach
+    there; the start's for the first stretch); a state in which it moves takes the next stretch's."""
+    runs: list[list[int]] = []
+    for t, s in enumerate(states):
+        if moving(arm) in s:
+            continue
+        if runs and runs[-1][-1] == t - 1:
+            runs[-1].append(t)
+        else:
+            runs.append([t])
+    for k, run in enumerate(runs):
+        qs = [out[Var("q", arm, t)] for t in run]
+        first = next((i for i in range(1, len(qs)) if not np.allclose(qs[i], qs[i - 1])), 0)
+        base = qs[0][:3].copy() if run[0] == 0 else qs[first][:3].copy()
+        end = runs[k + 1][0] if k + 1 < len(runs) else len(states)
+        for t in range(run[0], end):  # the stretch, then the moving states after it take the next base
+            out[Var("q", arm, t)][:3] = base
+        if k > 0:
+            for t in range(runs[k - 1][-1] + 1, run[0]):
+                out[Var("q", arm, t)][:3] = base
+
+
+def ik_seed(
+    lib: FactorLib, ik: TopIK, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]
+) -> dict[Var, FloatArray]:
+    """``guess`` with each kinematic switch's arm at a top-grasp IK of its object's guessed world pose
+    (and the held pose that matches): a start for a subgraph whose guess later solves have moved."""
+    out = dict(guess)
+    for f in factors:
+        if f.kind != "Kin":
+            continue
+        q_var, w_var, r_var = f.vars
+        o, arm = f.key[1], f.key[2]
+        w = np.asarray(out[w_var], float)
+        h = lib.objects[o].size[2]
+        ok, q = ik.solve(arm, w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)]), np.asarray(out[q_var], float))
+        if ok:
+            out[q_var] = q
+            out[r_var] = _held_of(lib, arm, q, w)
     return out

@@ -4,19 +4,24 @@ The keyframes are the solved arm configurations at each action. Between them eac
 phase of straight joint-space segments: every arm left at a keyframe first lifts its hand
 ``LIFT`` straight up (IK, posture kept); every other arm then returns to its start posture (one that
 holds an object takes it along); the acting arm moves to ``LIFT`` above its keyframe, then down onto
-it (grasp or release). This is not the
-paper's 20-waypoint trajectory optimisation: the replay (``validate_plan``) decides.
+it (grasp or release). A mobile arm's ``end-move`` is the drive to the base of the next keyframes
+(``start-move`` lifts the hand): the arm held in one posture (its own, folded with an empty hand, or
+raised), the base straight if that motion is free, else round the fixtures by OMPL on the base alone,
+each motion checked in PyBullet with the resting objects and the held one (``reach.ompl_plan.drive_base``,
+as R-LGP drives). This is not the paper's 20-waypoint trajectory optimisation: the replay
+(``validate_plan``) decides.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
-from rlgp_exec.planning.gnpp.geometry import FactorLib
-from rlgp_exec.planning.gnpp.guess import TopIK
-from rlgp_exec.planning.gnpp.pntc import Var
+from rlgp_exec.planning.gnpp.geometry import FLOOR, FactorLib
+from rlgp_exec.planning.gnpp.guess import TopIK, rel_T
+from rlgp_exec.planning.gnpp.pntc import MOVES, Var
 from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.robot.model import FloatArray
@@ -24,12 +29,44 @@ from rlgp_exec.robot.model import FloatArray
 __all__ = ["LIFT", "phases_of"]
 
 LIFT = 0.10  # [m]
+DRIVE_TIMEOUT = 2.0  # [s] OMPL's time for a base path round the fixtures (per posture tried)
 
 
-def _lift(lib: FactorLib, ik: TopIK, arm: str, q7: FloatArray) -> FloatArray | None:
-    pos = lib.tool_T(arm, q7)[:3, 3] + np.array([0.0, 0.0, LIFT])
-    ok, q = ik.solve(arm, pos, q7)
-    return q if ok else None
+def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> FloatArray | None:
+    pos = lib.tool_T(arm, q)[:3, 3] + np.array([0.0, 0.0, LIFT])
+    ok, q_up = ik.solve(arm, pos, q, fixed_base=True)
+    return q_up if ok else None
+
+
+def _drive(
+    lib: FactorLib,
+    q1: FloatArray,
+    base: FloatArray,
+    resting: Mapping[str, FloatArray],
+    held: tuple[str, FloatArray] | None,
+) -> FloatArray | None:
+    """A checked path (n, nq) from the full configuration q1 to the base pose ``base`` (3,) [m, rad]
+    (the arm in one of ``drive_postures``), the objects at ``resting`` world poses (4,) as obstacles,
+    ``held`` = (object, T_tool_obj (4, 4)) carried; None if no posture gives one."""
+    from rlgp_exec.reach import WorldChecker
+    from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
+    from rlgp_exec.scene.geometry import object_box
+
+    model = lib.model
+    checker = WorldChecker(lib.scene, model.manipulator().group)
+    try:
+        boxes = [replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in resting.items()]
+        checker.set_objects(boxes)
+        if held is not None:
+            checker.attach(np.asarray(lib.objects[held[0]].size), held[1])
+        q2 = q1.copy()
+        q2[list(model.group("base"))] = base
+        rigid, postures = drive_postures(model, q1, q2, empty_hand=held is None)
+        lo = np.full(2, -FLOOR)
+        hi = np.full(2, FLOOR)
+        return drive_base(checker, q1, q2, rigid, postures, lo, hi, DRIVE_TIMEOUT)
+    finally:
+        checker.close()
 
 
 def phases_of(
@@ -65,7 +102,7 @@ def phases_of(
         return None
 
     for k, a in enumerate(actions):
-        m, obj = a.args[0], a.args[1]
+        m = a.args[0]
         v = Var("q", m, k + 1)
         if v not in values:
             return f"no keyframe for {a}"
@@ -73,6 +110,22 @@ def phases_of(
         why = lift_low(path, m, f"its last action (before {a})")
         if why is not None:
             return why
+        obj = holding.get(m)
+        carried = tuple((arm, o) for arm, o in holding.items() if arm != m)
+        if a.name in MOVES:
+            if a.name == MOVES[1]:  # end-move: drive to the base of the keyframes that follow
+                still = [o for o in lib.objects if o not in holding.values()]
+                resting = {o: values.get(Var("x", o, k + 1), lib.start_pose(o)) for o in still}
+                grip = None if obj is None else (obj, rel_T(values[Var("x", obj, k + 1)], lib.upright(m)))
+                drive = _drive(lib, full(), values[v][:3], resting, grip)
+                if drive is None:
+                    return f"no collision-free drive for {a} to base {np.round(values[v][:3], 3).tolist()}"
+                path += list(drive[1:])
+                cur[m] = drive[-1][lib.arm_index(m)]
+            phases.append(Phase(np.array(path), obj, arm=m, carried=carried))
+            keyframes.append(full())
+            continue
+        obj = a.args[1]
         q_k = values[v]
         pre = _lift(lib, ik, m, q_k)
         if pre is None:
@@ -83,7 +136,6 @@ def phases_of(
         path.append(full())
         keyframes.append(full())
         low[m] = True
-        carried = tuple((arm, o) for arm, o in holding.items() if arm != m)
         if a.name == "pick":
             phases.append(Phase(np.array(path), None, grasp=obj, arm=m, carried=carried))
             holding[m] = obj

@@ -33,11 +33,11 @@ from rlgp_exec.planning.gnpp.conflicts import (
     find_conflict,
 )
 from rlgp_exec.planning.gnpp.database import SubgraphDB
-from rlgp_exec.planning.gnpp.geometry import FINGER_INNER, FactorLib
+from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
-from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
+from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
-from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
+from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
 from rlgp_exec.planning.gnpp.solver import GraphSolver
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
@@ -68,7 +68,7 @@ VARIANTS: dict[str, ExtractOptions | None] = {
     "gnpp_trng": ExtractOptions(time_search=True, relaxations=True, convergence=True, database=True),
     "oneway": None,
 }
-GEOMETRIC = ("pick", "place", "stack")
+GEOMETRIC = ("pick", "place", "stack", *MOVES)
 
 
 class Logic(enum.Enum):
@@ -133,13 +133,16 @@ def plan_gnpp(
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
+    if lib.mobile:
+        solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)
     db = None
     if opts is not None and opts.database:
         arm_idx = {int(i) for m in lib.arms for i in lib.arm_index(m)}
         fixed = {n: float(lib.q_nominal[i]) for i, n in enumerate(model.joint_names) if i not in arm_idx}
         db = SubgraphDB() if memory is None else memory.subgraph_db(scene, fixed)
         db.bind(lib.call_context())
-    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    mobile = lib.arms if lib.mobile else ()
+    task = add_flags(add_moves(ground_scene(scene, manipulators=list(lib.arms)), mobile))
     wide = lib.too_wide()
     if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
         ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
@@ -198,7 +201,7 @@ def plan_gnpp(
                 proof += ")"
                 if wide:
                     proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
-                        2 * FINGER_INNER, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
+                        2 * lib.finger_inner, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
                     )
             return result(status, f"{status.value}: {why}{proof}", it=it)
         if n0 is None:
@@ -209,7 +212,7 @@ def plan_gnpp(
             forbidden.append(_whole(states))
             reasons.append(f"{bad[0]}: no geometry for {bad[0].name}")
             continue
-        graph = factors_of(states, lib.arms, objects)
+        graph = factors_of(states, lib.arms, objects, mobile)
         guess = initial_guess(lib, ik, states, variables(graph))
         check = Checker(solver, guess, db, deadline=c0 + timeout_s)
         try:

@@ -7,9 +7,15 @@ free or the held object. Two flag atoms are added so that Pi is time-invariant: 
 (o rests where the scene put it; deleted by every pick of o — the paper's ``parent = o.init``) and
 ``(initial-state)`` (deleted by every action; the arms are at their start configuration).
 
-Continuous variables per time step t (the state s_t, i.e. after the t-th action): ``q``/arm (7,) and
-``x``/object (4,) (see ``geometry``). Pi (each factor records the partial states that generated it,
-by time index, for tracing a conflict back to the logic):
+A mobile arm (one arm on a mobile base: the paper's Field scenario) gets the paper's two move operators
+(``add_moves``): ``(start-move m)`` adds ``(moving m)``, ``(end-move m)`` deletes it, and pick / place /
+stack by m require ``(not (moving m))``. While m is moving its base may change; otherwise ``EqualBase``
+holds it between time steps, so a base pose that cannot reach two keyframes is a conflict like any
+other, and the logic learns to move the base between them.
+
+Continuous variables per time step t (the state s_t, i.e. after the t-th action): ``q``/arm (7,; a
+mobile arm: base x, y, yaw and its joints) and ``x``/object (4,) (see ``geometry``). Pi (each factor
+records the partial states that generated it, by time index, for tracing a conflict back to the logic):
 
 =========  ======================================  ===========================================
 factor     partial states                          constraint
@@ -21,6 +27,7 @@ Grasp(o)   {(on o s)} -> {(holding m o)}           x_{t+1}^o a grasp from above 
 Place(o,s) {(holding m o)} -> {(on o s)}           x_{t+1}^o on surface/slot s (inside, resting)
 On(o,p)    {(holding m o)} -> {(on o p)}           x_{t+1}^o resting on object x_{t+1}^p
 Equal(o)   parent unchanged t -> t+1               x_t^o = x_{t+1}^o
+EqualBase  {not (moving m)} at t and t+1           base of q_t^m = base of q_{t+1}^m (mobile arm m)
 ColFix(m)  {not (initial-state)} at t              arm m clear of the fixtures
 ColAA      {not (initial-state)} at t              the two arms clear of each other
 ColAO(m,o) {not (initial-state), not (holding * o)} arm m (up to the wrist) clear of resting object o
@@ -34,22 +41,24 @@ would add equalities that are redundant with Equal, which a Newton-type solver d
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from rlgp_exec.planning.symbolic.model import Atom, GroundProblem, Operator, SymbolicState
+from rlgp_exec.planning.symbolic.model import Atom, GroundAction, GroundProblem, Operator, SymbolicState
 from rlgp_exec.planning.symbolic.reformulate import PartialState
 
-__all__ = ["INITIAL", "Factor", "Var", "add_flags", "factors_of", "parents"]
+__all__ = ["INITIAL", "MOVES", "Factor", "Var", "add_flags", "add_moves", "factors_of", "moving", "parents"]
 
 INITIAL: Atom = ("initial-state",)
+MOVES = ("start-move", "end-move")  # the paper's move operators (a mobile arm's base)
 COLLISION = ("ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
 #: the collision factors the "No Col" relaxation removes: those between two variables, which make a time
 #: step's graph dense (paper Sec. VIII-B). ColFix (one arm against the fixed world, with the PR2's
 #: pan/wrist limits) has one variable: it connects nothing, and it is what makes most reach conflicts
 COUPLING_COLLISION = ("ColAA", "ColAO", "ColHO", "ColOO")
-TIME = ("Equal",)
+TIME = ("Equal", "EqualBase")
 
 
 @dataclass(frozen=True, order=True)
@@ -123,6 +132,29 @@ def add_flags(problem: GroundProblem) -> GroundProblem:
     )
 
 
+def moving(arm: str) -> Atom:
+    """The atom (moving m): the mobile arm m's base may move (between start-move and end-move)."""
+    return ("moving", arm)
+
+
+def add_moves(problem: GroundProblem, arms: Sequence[str]) -> GroundProblem:
+    """``problem`` with start-move / end-move for each mobile arm in ``arms``, and pick / place / stack by
+    it only while it is not moving (see the module docstring)."""
+    if not arms:
+        return problem
+    ops = []
+    for op in problem.operators:
+        arm = op.action.args[0] if op.action.args else None
+        if arm in arms:
+            op = Operator(op.action, op.pre, op.pre_neg | {moving(arm)}, op.add, op.delete, op.cond_effects)
+        ops.append(op)
+    for m in arms:
+        start, end = GroundAction(MOVES[0], (m,)), GroundAction(MOVES[1], (m,))
+        ops.append(Operator(start, frozenset(), frozenset({moving(m)}), frozenset({moving(m)}), frozenset()))
+        ops.append(Operator(end, frozenset({moving(m)}), frozenset(), frozenset(), frozenset({moving(m)})))
+    return dataclasses.replace(problem, operators=tuple(ops))
+
+
 def parents(state: SymbolicState) -> dict[str, str]:
     """parent(o) for every object: the support it is on or the arm holding it."""
     out = {}
@@ -170,9 +202,13 @@ def _state_factors(
 
 
 def _transition_factors(
-    t: int, s: SymbolicState, s2: SymbolicState, arms: list[str], movable: set[str]
+    t: int, s: SymbolicState, s2: SymbolicState, arms: list[str], movable: set[str], mobile: Sequence[str]
 ) -> list[Factor]:
     out: list[Factor] = []
+    for m in mobile:
+        if moving(m) not in s and moving(m) not in s2:
+            ps = ((t, _ps((), [moving(m)])), (t + 1, _ps((), [moving(m)])))
+            out.append(Factor(("EqualBase", m), (Var("q", m, t), Var("q", m, t + 1)), ps))
     p1, p2 = parents(s), parents(s2)
     for o in sorted(set(p1) & set(p2) & movable):
         a, b = p1[o], p2[o]
@@ -197,12 +233,15 @@ def _transition_factors(
     return out
 
 
-def factors_of(states: Sequence[SymbolicState], arms: Sequence[str], objects: Sequence[str]) -> list[Factor]:
-    """Pi applied to a state sequence s_0 .. s_n: every factor of the graph-NLP, in time order."""
+def factors_of(
+    states: Sequence[SymbolicState], arms: Sequence[str], objects: Sequence[str], mobile: Sequence[str] = ()
+) -> list[Factor]:
+    """Pi applied to a state sequence s_0 .. s_n: every factor of the graph-NLP, in time order
+    (``mobile``: the arms whose variable includes their base, see ``add_moves``)."""
     arms_l, movable = list(arms), set(objects)
     out: list[Factor] = []
     for t, s in enumerate(states):
         out += _state_factors(t, s, states[t - 1] if t else None, arms_l, movable)
         if t + 1 < len(states):
-            out += _transition_factors(t, s, states[t + 1], arms_l, movable)
+            out += _transition_factors(t, s, states[t + 1], arms_l, movable, mobile)
     return out

@@ -12,7 +12,7 @@ from __future__ import annotations
 import enum
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -89,6 +89,10 @@ class GraphSolver:
 
     def __init__(self, lib: FactorLib, restarts: int = 1) -> None:
         self.lib, self.restarts = lib, restarts
+        #: optional: (factors, guess) -> a start for ``refute``'s first try (the planner sets one for a
+        #: mobile arm: top-grasp IK at each kinematic switch; the HSR's folded start posture converges
+        #: to a top grasp from few random starts)
+        self.seeder: Callable[[Sequence[Factor], Mapping[Var, FloatArray]], Mapping[Var, FloatArray]] | None = None
         self.n_solves = 0
         self.solve_time_s = 0.0
         self._cache: dict[tuple, _Built] = {}
@@ -100,7 +104,7 @@ class GraphSolver:
         return (tuple(v.label for v in order), tuple((f.key, tuple(pos[v] for v in f.vars)) for f in factors))
 
     def _build(self, factors: Sequence[Factor], order: list[Var]) -> _Built:
-        dims = [7 if v.kind == "q" else 4 for v in order]
+        dims = [self.lib.dim(v.kind, v.owner) for v in order]
         offs = np.cumsum([0, *dims])
         x = ca.MX.sym("x", int(offs[-1]))
         p = ca.MX.sym("p", int(offs[-1]))
@@ -137,17 +141,34 @@ class GraphSolver:
     def _refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int, rng: np.random.Generator
     ) -> Mapping[Var, FloatArray] | None:
-        for _ in range(tries):
-            start = {
-                v: (self.lib.home_q(v.owner) + rng.normal(0.0, 0.5, 7))
-                if v.kind == "q"
-                else np.asarray(guess[v], float) + rng.normal(0.0, 1.0, 4) * X_JITTER
-                for v in variables(factors)
-            }
+        for k in range(tries):
+            start = {v: self._jittered(v, guess[v], rng) for v in variables(factors)}
+            if k == 0 and self.seeder is not None:  # the first try from the seeder's start instead
+                start = dict(self.seeder(factors, {v: guess[v] for v in start}))
             res = self.solve(factors, start)
             if res.feasible:
                 return res.values
         return None
+
+    def _jittered(self, v: Var, guess: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """A random start for ``refute``: an arm's start posture perturbed, an object's guess perturbed.
+        A mobile arm's base about its guess (its start base is rarely near the keyframe)."""
+        if v.kind != "q":
+            return np.asarray(guess, float) + rng.normal(0.0, 1.0, 4) * X_JITTER
+        home = self.lib.home_q(v.owner)
+        if self.lib.mobile:
+            home[:3] = np.asarray(guess, float)[:3]
+        return home + rng.normal(0.0, 0.5, home.size)
+
+    def _home_start(self, v: Var, guess: FloatArray) -> FloatArray:
+        """``solve``'s second start for a variable: an arm at its start posture (a mobile arm's base
+        where the guess has it), an object at its guess."""
+        if v.kind != "q":
+            return guess
+        home = self.lib.home_q(v.owner)
+        if self.lib.mobile:
+            home[:3] = np.asarray(guess, float)[:3]
+        return home
 
     def solve(self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]) -> SolveResult:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
@@ -162,8 +183,8 @@ class GraphSolver:
         ubx = np.concatenate([b[1] for b in bounds])
         guess = _apart(factors, guess)
         starts = [np.concatenate([guess[v] for v in order])]
-        if any(v.kind == "q" for v in order):  # a second start: every arm at its start posture
-            starts.append(np.concatenate([self.lib.home_q(v.owner) if v.kind == "q" else guess[v] for v in order]))
+        if any(v.kind == "q" for v in order):  # a second start: every arm at its start posture (base kept)
+            starts.append(np.concatenate([self._home_start(v, guess[v]) for v in order]))
         for x0 in starts[: 1 + self.restarts]:
             x0 = np.clip(x0, lbx, ubx)
             res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
@@ -177,7 +198,7 @@ class GraphSolver:
                 break
         values, k = {}, 0
         for v in order:
-            d = 7 if v.kind == "q" else 4
+            d = self.lib.dim(v.kind, v.owner)
             values[v] = xs[k : k + d].copy()
             k += d
         ok = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL

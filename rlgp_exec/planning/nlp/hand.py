@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 
 import casadi as ca
 import numpy as np
@@ -28,7 +29,7 @@ from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "points_clear", "self_clear"]
+__all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "link_box_spheres", "points_clear", "self_clear"]
 
 SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
 SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
@@ -54,13 +55,18 @@ def _box_cover(size: FloatArray) -> list[tuple[FloatArray, float]]:
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
     """(centre in the tool frame (3,) [m], radius [m]) spheres on the finger links' box shapes at ``q``."""
+    links = [n for n in model.manipulator().links if "finger" in n]
+    return link_box_spheres(robot, model, q, links)
+
+
+def link_box_spheres(robot, model, q: FloatArray, links: Sequence[str]) -> list[tuple[FloatArray, float]]:
+    """(centre in the first manipulator's tool frame (3,) [m], radius [m]) spheres covering the box
+    collision shapes of ``links`` at ``q`` (PyBullet's shapes; mesh shapes get none)."""
     manip = model.manipulator()
     robot.set_q(q)
     T_tool = model.fk(q, manip.tool_frame)
     out: list[tuple[FloatArray, float]] = []
-    for name in manip.links:
-        if "finger" not in name:
-            continue
+    for name in links:
         i = robot.link_index[name]
         st = p.getLinkState(robot.id, i, computeForwardKinematics=True, physicsClientId=robot.client)
         T_com = pose_to_matrix(st[0], st[1])
