@@ -244,3 +244,30 @@ def test_graph_seed_orders_the_free_seeds_by_base_distance():
     assert _graph_seed(ik, x, lambda _x: zs, rects, len(zs), prev) is None
     assert np.array_equal(_graph_seed(ik, x, lambda _x: zs, rects, 3), zs[3])
     assert _graph_seed(ik, x, None, rects, 0, prev) is None
+
+
+def test_merged_constraints_equal_the_rows():
+    """_constraints (common subexpressions merged) evaluates to the rows' own values at random
+    configurations of the PR2 near a table and a standing block."""
+    import casadi as ca
+
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear
+    from rlgp_exec.planning.nlp.keyframes import _constraints, _objects_clear
+    from rlgp_exec.scene.geometry import fixture_boxes, object_box
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    model = load_robot("pr2")
+    n = 3 + len(model.group(model.manipulator().group))
+    z = ca.SX.sym("z", n)
+    rs = RobotSymbols(model, model.home(), None, z)
+    rows = Rows.empty()
+    box_clear(rs, [b for fx in scene.fixtures for b in fixture_boxes(fx)], rows, margin=0.015)
+    _objects_clear(rs, [object_box(o) for o in scene.objects], rows, 0.008)
+    plain, merged = ca.Function("plain", [z], [ca.vertcat(*rows.g)]), ca.Function("merged", [z], [_constraints(rows)])
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        zv = np.r_[rng.uniform(-1.0, 1.0, 2), rng.uniform(-np.pi, np.pi), rng.uniform(-1.0, 1.0, n - 3)]
+        a, b = np.asarray(plain(zv)).ravel(), np.asarray(merged(zv)).ravel()
+        assert a.shape == (len(rows.g),)
+        assert np.allclose(a, b, rtol=0.0, atol=1e-12)
+    assert _constraints(Rows.empty()).shape == (0, 1)

