@@ -193,3 +193,100 @@ def test_a_graph_seed_in_front_of_a_table_is_pushed_clear_not_dropped():
             assert np.array_equal(pushed, z)
     z[:2] = [0.0, 0.0]  # in the middle of the table: too far to push
     assert _push_free(ik, z, rects) is None
+
+
+def test_pick_between_close_blocks_is_feasible():
+    """pick_place_pr2 seed 3: block_c stands 7.6 cm from block_b. The tool sphere (radius 3.5 cm) at the
+    grasp kept the arm's 1.5 cm margin from block_b too, 0.3 mm more than the gap allows: every
+    candidate failed. At a pick it keeps the open hand's margin; the real fingers pass the PyBullet
+    keyframe check (5 mm clearance) against the standing blocks."""
+    from rlgp_exec.planning.sequence import SequenceGeometry
+    from rlgp_exec.scene.randomize import randomize
+
+    scene = randomize(load_scene(SORTING.parent / "pick_place_pr2.toml"), 3)
+    geo = SequenceGeometry(scene, seed=3)
+    try:
+        kf = solve_keyframes(
+            geo.model, scene, geo.q0, [Action("pick", "block_c")], seed=3, in_collision=geo._in_collision,
+            ik=geo.ik, hand=geo.hand, self_spheres=geo.self_spheres, body=geo.body, lift_room=0.12,
+            seeds=geo._graph_seeds,
+        )
+        assert kf.ok, kf.reason
+        others = {o.name: o.T for o in scene.objects if o.name != "block_c"}
+        assert not geo._in_collision(kf.keyframes[0], {}, Action("pick", "block_c"), others)
+    finally:
+        geo.close()
+
+
+def test_objects_clear_keeps_the_tool_sphere_at_its_own_margin():
+    """Every arm sphere keeps ARM_MARGIN beyond its radius from a standing object; the tool's keeps the
+    margin it is given (a pick: HAND_MARGIN)."""
+    import casadi as ca
+
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
+    from rlgp_exec.planning.nlp.keyframes import ARM_MARGIN, HAND_MARGIN, _objects_clear
+    from rlgp_exec.scene.geometry import Box
+
+    model = load_robot("pr2")
+    rs = RobotSymbols(model, model.home(), None, ca.SX.sym("z", 3 + len(model.group(model.manipulator().group))))
+    rows = Rows.empty()
+    grey = (0.5, 0.5, 0.5, 1.0)
+    boxes = [Box("a", (0.05, 0.05, 0.1), np.eye(4), grey), Box("b", (0.1, 0.05, 0.1), np.eye(4), grey)]
+    _objects_clear(rs, boxes, rows, HAND_MARGIN)
+    assert len(rows.g) == len(boxes) * len(rs.spheres)
+    expect = [r + (HAND_MARGIN if f == rs.manip.tool_frame else ARM_MARGIN) for f, r in rs.spheres]
+    assert rows.lower == pytest.approx(expect * len(boxes))
+    assert all(u == ca.inf for u in rows.upper)
+
+
+def test_graph_seed_orders_the_free_seeds_by_base_distance():
+    """_graph_seed: the free seeds nearest the previous keyframe's base first (ties in the given order);
+    without a base, the given order; None past the end."""
+    from rlgp_exec.planning.nlp.keyframes import _graph_seed
+    from rlgp_exec.reach import ReachIK, nominal_q
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    model = load_robot(scene.robot.name)
+    ik = ReachIK(model, scene, nominal_q(model, scene))
+    rng = np.random.default_rng(0)
+    zs = []
+    for _ in range(10):  # bases on a ring 1.5-2.5 m from the table's centre: clear of its footprint
+        a, r = rng.uniform(-np.pi, np.pi), rng.uniform(1.5, 2.5)
+        zs.append(np.r_[r * np.cos(a), r * np.sin(a), rng.uniform(-np.pi, np.pi), ik.home_arm])
+    rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
+    x = np.zeros(3)
+    prev = np.array([0.0, -2.0])
+    got = [_graph_seed(ik, x, lambda _x: zs, rects, i, prev) for i in range(len(zs))]
+    d = [float(np.linalg.norm(z[:2] - prev)) for z in got]
+    assert d == sorted(d)
+    assert sorted(map(tuple, (z[:3] for z in got))) == sorted(map(tuple, (z[:3] for z in zs)))
+    assert _graph_seed(ik, x, lambda _x: zs, rects, len(zs), prev) is None
+    assert np.array_equal(_graph_seed(ik, x, lambda _x: zs, rects, 3), zs[3])
+    assert _graph_seed(ik, x, None, rects, 0, prev) is None
+
+
+def test_merged_constraints_equal_the_rows():
+    """_constraints (common subexpressions merged) evaluates to the rows' own values at random
+    configurations of the PR2 near a table and a standing block."""
+    import casadi as ca
+
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear
+    from rlgp_exec.planning.nlp.keyframes import _constraints, _objects_clear
+    from rlgp_exec.scene.geometry import fixture_boxes, object_box
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    model = load_robot("pr2")
+    n = 3 + len(model.group(model.manipulator().group))
+    z = ca.SX.sym("z", n)
+    rs = RobotSymbols(model, model.home(), None, z)
+    rows = Rows.empty()
+    box_clear(rs, [b for fx in scene.fixtures for b in fixture_boxes(fx)], rows, margin=0.015)
+    _objects_clear(rs, [object_box(o) for o in scene.objects], rows, 0.008)
+    plain, merged = ca.Function("plain", [z], [ca.vertcat(*rows.g)]), ca.Function("merged", [z], [_constraints(rows)])
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        zv = np.r_[rng.uniform(-1.0, 1.0, 2), rng.uniform(-np.pi, np.pi), rng.uniform(-1.0, 1.0, n - 3)]
+        a, b = np.asarray(plain(zv)).ravel(), np.asarray(merged(zv)).ravel()
+        assert a.shape == (len(rows.g),)
+        assert np.allclose(a, b, rtol=0.0, atol=1e-12)
+    assert _constraints(Rows.empty()).shape == (0, 1)

@@ -265,3 +265,22 @@ def test_load_or_build_uses_a_good_cache_and_rebuilds_a_corrupt_one(tmp_path):
     cache.write_bytes(b"garbage")
     g3, s3 = load_or_build(scene, params=params, workers=1, folder=tmp_path)
     assert not s3.from_cache and g3.G.number_of_nodes() == 12
+
+
+@pytest.mark.parametrize("scene_file", ["pick_place_pr2.toml", "sorting_hsr.toml"])
+def test_ik_tolerance_gives_the_verdicts_of_a_tighter_one(scene_file):
+    """The IK's IPOPT tolerance (IK_TOL) accepts and refuses the same random targets as a 10x tighter
+    one, and what it accepts puts the tool within POS_TOL of the target."""
+    scene = load_scene(SORTING.parent / scene_file)
+    model = load_robot(scene.robot.name)
+    q0 = nominal_q(model, scene)
+    ik, tight = ReachIK(model, scene, q0), ReachIK(model, scene, q0, tol=1e-6)
+    rng = np.random.default_rng(1)
+    tool = model.manipulator().tool_frame
+    for _ in range(25):
+        x = np.array([rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(0.4, 1.2)])
+        z0 = ik.guess(x, rng.uniform(-np.pi, np.pi))
+        a, b = ik.solve(x, z0), tight.solve(x, z0)
+        assert a.ok == b.ok, (x, a.reason, b.reason)
+        if a.ok:
+            assert np.linalg.norm(model.fk(a.q, tool)[:3, 3] - x) <= POS_TOL

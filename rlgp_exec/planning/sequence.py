@@ -119,9 +119,10 @@ class SequenceGeometry:
         held object, if there is one), tried in order: drive and move the arm at once; back off RETREAT
         (the base straight away from the nearest fixture footprint, heading kept), drive and
         move the arm, come in to the other end the same way; move the arm first, then drive; drive
-        first, then move the arm; with an empty hand, fold the arm (the home posture), drive, unfold
-        (the checks do not cover a held object against the robot's own body). A verdict on a
-        configuration or motion that variants share is computed once."""
+        first, then move the arm; turn the base on the spot to the other end's heading, then drive
+        (or drive, then turn; or back off, turn, drive, come in); with an empty hand, fold the arm
+        (the home posture), drive, unfold (the checks do not cover a held object against the robot's
+        own body). A verdict on a configuration or motion that variants share is computed once."""
         lifts = [n for n in ("arm_lift_joint", "torso_lift_joint") if n in self.model.joint_names]
         if not lifts:
             return None
@@ -139,8 +140,20 @@ class SequenceGeometry:
         back_a, back_b = a.copy(), b.copy()
         for q in (back_a, back_b):
             q[:2] += RETREAT * self._away(q[:2])
+        # turning on the spot at one end (the base's heading the other end's), so that the drive is
+        # straight: a base rotating while it drives sweeps its corners round a nearby table's
+        turn_a, turn_b, turn_back_a = a.copy(), b.copy(), back_a.copy()
+        turn_a[2], turn_b[2], turn_back_a[2] = b[2], a[2], b[2]
         verdicts: dict[bytes, bool] = {}  # configuration or motion -> free
-        variants = [[a, b], [a, back_a, back_b, b], [a, arm_first, b], [a, drive_first, b]]
+        variants = [
+            [a, b],
+            [a, back_a, back_b, b],
+            [a, arm_first, b],
+            [a, drive_first, b],
+            [a, turn_a, b],
+            [a, turn_b, b],
+            [a, back_a, turn_back_a, back_b, b],
+        ]
         if self.checker.attached is None:  # folded, a held object could reach into the body (unchecked)
             variants.append([a, fold_a, fold_b, b])
         for mid in variants:

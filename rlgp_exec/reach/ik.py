@@ -31,6 +31,10 @@ log = logging.getLogger(__name__)
 POS_TOL = 2e-3  # [m] a node's q must put the tool within this of x0
 MEMO_SIZE = 20_000  # IK answers remembered per solver (the same target and start recur within a plan)
 W_REG = 1e-4  # weight of the arm posture regulariser (small: it must not pull the tool off x0)
+# IPOPT's tolerance: 1e-5 finds the same nodes as 1e-6 (150 random targets per scene, pick_place_pr2,
+# sorting_pr2, table_clearing_hsr, field_hsr: same successes, tool errors ~0.3 mm either way, far
+# inside POS_TOL) in 5-25 % less time; 1e-4 loses targets on the HSR (tool > 2 mm off)
+IK_TOL = 1e-5
 
 
 @dataclass(frozen=True)
@@ -83,7 +87,9 @@ class ReachIK:
         q_nominal: FloatArray,
         manipulator: str | None = None,
         clearance: float = 0.03,
+        tol: float = IK_TOL,
     ) -> None:
+        """``clearance`` [m]: the base circles' extra room from fixture footprints; ``tol``: IPOPT's."""
         self.model = model
         self.manip = model.manipulator(manipulator)
         self.tool = self.manip.tool_frame
@@ -125,14 +131,16 @@ class ReachIK:
                     pl = ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3])
                     g.append(box_sdf(pl, np.asarray(b.size) / 2))
                     self.g_lo.append(r)
-        nlp = {"x": z, "p": p, "f": f, "g": ca.vertcat(*g) if g else ca.SX(0, 1)}
+        # common subexpressions merged (the arm's kinematics once, not once per fixture box): the same
+        # answers, ~5-10 % less time per solve
+        nlp = {"x": z, "p": p, "f": f, "g": ca.cse(ca.vertcat(*g)) if g else ca.SX(0, 1)}
         opts = {
             "ipopt.print_level": 0,
             "print_time": False,
             "ipopt.sb": "yes",
             "ipopt.max_iter": 100,
-            "ipopt.tol": 1e-6,
-            "ipopt.acceptable_tol": 1e-5,
+            "ipopt.tol": tol,
+            "ipopt.acceptable_tol": max(tol, 1e-5),
             "ipopt.mu_init": 1e-3,
         }
         self._solver = ca.nlpsol("reach_ik", "ipopt", nlp, opts)
