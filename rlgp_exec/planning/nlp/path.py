@@ -7,11 +7,12 @@ the ``T - 2`` inner ones are the variables. With the ends fixed the segments sha
 the whole-path NLP is block diagonal: solving it at once or segment by segment gives the same optimum
 (the keyframes act as the kinematic switches, fixed from level 2). It is solved at once here, as one
 IPOPT problem, variables ordered time-major (segment by segment, waypoint by waypoint, z = [x, y,
-yaw, q_arm] each), constraint rows likewise (a waypoint's rows, then its velocity rows), so the
-constraint Jacobian and the Lagrangian's Hessian are banded and grow linearly with the plan.
+yaw, q_arm, a moving torso] each), each segment's rows time-major too, so the constraint Jacobian
+(block diagonal over segments, block bidiagonal within) and the Lagrangian's Hessian (banded) grow
+linearly with the plan; both are assembled from that structure (``_nlp``).
 
-Per inner waypoint, built from the shared factors (``nlp.factors``, ``nlp.hand``), the same the
-keyframe NLP and GNPP use:
+At every inner waypoint and at the midpoint of every step (``_checkpoints``), built from the shared
+factors (``nlp.factors``, ``nlp.hand``), the same the keyframe NLP and GNPP use:
 
 * arm spheres and the open fingers' spheres clear of world boxes (fixtures, drawers at their
   openings, the objects where they stand) by ``MARGIN``; a held object (kinematic switch: fixed in
@@ -27,7 +28,7 @@ keyframe NLP and GNPP use:
 Objective: the weighted squared second differences (acceleration), base weighing ``W_BASE``.
 Rows far from active (slack > ``CUTOFF``) at the warm start and on the straight line between the
 ends are left out; the solution is checked against every row and a re-solve adds the violated ones.
-A row the warm start itself violates at a waypoint (the spheres are conservative proxies of meshes
+A row the warm start itself violates at a checkpoint (the spheres are conservative proxies of meshes
 the exact checker passed) is bounded there by the warm start's value instead (``relaxed``): never
 worse than the guide.
 """
@@ -57,7 +58,7 @@ T_DEFAULT = 16  # waypoints per segment, ends included
 MARGIN = 0.01  # [m] spheres keep this from the world boxes
 BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
 SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
-CUTOFF = 0.1  # [m] rows with more slack than this all along the warm start are left out
+CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are left out
 FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
@@ -192,9 +193,19 @@ class _Block:
     z: ca.SX
     zp: ca.SX
     keep: FloatArray  # indices of the rows in the NLP
-    lb: FloatArray  # (len(keep), T - 2) their lower bounds per inner waypoint (relaxed where the warm start
-    # violates them)
+    lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
+    # the warm start violates them)
     relaxed: int
+
+
+def _checkpoints(Z: FloatArray) -> FloatArray:
+    """(2 T - 3, n) where a path Z (T, n) is checked, in time order: the midpoint of every step and every
+    inner waypoint (mid 0-1, waypoint 1, mid 1-2, ..., waypoint T-2, mid T-2 - T-1). The midpoints catch
+    what a waypoint-only check lets a step cut through (a base passing a cabinet's corner)."""
+    mids = (Z[1:] + Z[:-1]) / 2
+    out = np.empty((2 * len(Z) - 3, Z.shape[1]))
+    out[0::2], out[1::2] = mids, Z[1:-1]
+    return out
 
 
 def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
@@ -210,56 +221,84 @@ def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
     lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
     lo[model.limits.continuous[idx]], hi[model.limits.continuous[idx]] = -np.inf, np.inf
     lo[3:], hi[3:] = np.maximum(lo[3:], zs[:, 3:].min(axis=0) - PAD), np.minimum(hi[3:], zs[:, 3:].max(axis=0) + PAD)
-    blk = _Block(Zw, SLACK * tau, lo, hi, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int), np.zeros((0, T - 2)), 0)
-    inner = Zw[1:-1]
-    if len(inner) and len(lb_all):
-        vals = np.asarray(g_all.map(len(inner))(inner.T)).reshape(len(lb_all), -1)
+    pts = _checkpoints(Zw)
+    blk = _Block(Zw, SLACK * tau, lo, hi, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int),
+                 np.zeros((0, len(pts))), 0)
+    if len(lb_all):
+        vals = np.asarray(g_all.map(len(pts))(pts.T)).reshape(len(lb_all), -1)
         # near active at the warm start or on the straight line between the ends (where the
         # objective pulls): the rows the solution is likely to meet
         line = Zw[0] + np.linspace(0.0, 1.0, T)[1:-1, None] * (Zw[-1] - Zw[0])
         on_line = np.asarray(g_all.map(len(line))(line.T)).reshape(len(lb_all), -1)
         low = np.minimum(vals.min(axis=1), on_line.min(axis=1))
         keep = np.flatnonzero(low - lb_all < CUTOFF)
-        lb = np.minimum(lb_all[keep, None], vals[keep] - 1e-6)  # per waypoint: never below the warm start
+        lb = np.minimum(lb_all[keep, None], vals[keep] - 1e-6)  # per checkpoint: never below the warm start
         blk.keep, blk.lb, blk.relaxed = keep, lb, int(np.sum(vals[keep] < lb_all[keep, None]))
     return blk
 
 
+def _selectors(n: int, m: int) -> tuple[ca.DM, ca.DM]:
+    """Constant sparse maps from a segment's inner waypoints x = vec(Z_inner) (n m,) to its m + 1 step
+    midpoints (0.5 I on both neighbours; the fixed ends add a constant) and to its m + 1 steps
+    z_{t+1} - z_t (I, -I)."""
+    S, D = np.zeros((n * (m + 1), n * m)), np.zeros((n * (m + 1), n * m))
+    eye = np.eye(n)
+    for t in range(m + 1):
+        rows = slice(t * n, (t + 1) * n)
+        if t >= 1:
+            S[rows, (t - 1) * n:t * n], D[rows, (t - 1) * n:t * n] = 0.5 * eye, -eye
+        if t < m:
+            S[rows, t * n:(t + 1) * n], D[rows, t * n:(t + 1) * n] = 0.5 * eye, eye
+    return ca.sparsify(ca.DM(S)), ca.sparsify(ca.DM(D))
+
+
 def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int):
-    """The whole-path NLP of ``blocks``: (solver, x, g, x0, lbx, ubx, lbg, ubg). Variables and rows
-    time-major (module docstring). IPOPT's Hessian of the Lagrangian is the objective's alone
-    (constant, banded; the collision rows' curvature left out, as sequential convexification does):
-    the exact one costs ~4x the time per solve for the same paths (pick_place_pr2)."""
+    """The whole-path NLP of ``blocks``: (solver, x, g, x0, lbx, ubx, lbg, ubg). Variables time-major;
+    a segment's rows: its collision rows at the step midpoints, at the waypoints, then its velocity
+    rows, each group time-major. IPOPT gets both derivatives assembled from their structure: the
+    constraint Jacobian from one dense (k, n) block per checkpoint (``jat``, mapped) placed on the
+    block diagonal (midpoints: through the constant selector); the Hessian of the Lagrangian is the
+    objective's alone (constant, banded; the collision rows' curvature left out, as sequential
+    convexification does: the exact one cost ~4x the time per solve for the same paths on
+    pick_place_pr2)."""
     n, m = len(idx), T - 2
-    X, G, lbg, ubg, x0, lbx, ubx, f = [], [], [], [], [], [], [], 0
+    S, D = _selectors(n, m)
+    X, G, J, lbg, ubg, x0, lbx, ubx, f = [], [], [], [], [], [], [], [], 0
     for b in blocks:
         Zi = ca.MX.sym("Z", n, m)
         X.append(ca.vec(Zi))
         Zfull = ca.horzcat(ca.DM(b.Zw[0]), Zi, ca.DM(b.Zw[-1]))
+        Mid = (Zfull[:, 1:] + Zfull[:, :-1]) / 2
         g_kept = ca.vertcat(*[b.g_expr[i] for i in b.keep]) if len(b.keep) else ca.SX(0, 1)
         k = int(g_kept.numel())
-        step = ca.Function("step", [b.z, b.zp], [ca.vertcat(g_kept, b.z - b.zp)])
-        G.append(ca.vec(step.map(m)(Zi, Zfull[:, :-2])))  # time-major: waypoint t's rows, then its velocity
-        G.append(Zfull[:, -1] - Zfull[:, -2])
+        at = ca.Function("at", [b.z], [g_kept])
+        jat = ca.Function("jat", [b.z], [ca.jacobian(g_kept, b.z)])
+        G += [ca.vec(at.map(m + 1)(Mid)), ca.vec(at.map(m)(Zi)), ca.vec(Zfull[:, 1:] - Zfull[:, :-1])]
+        if k:
+            J_mid = ca.mtimes(ca.diagcat(*ca.horzsplit(jat.map(m + 1)(Mid), n)), ca.MX(S))
+            J_way = ca.diagcat(*ca.horzsplit(jat.map(m)(Zi), n))
+        else:
+            J_mid, J_way = ca.MX(0, n * m), ca.MX(0, n * m)
+        J.append(ca.vertcat(J_mid, J_way, ca.MX(D)))
         vel = model.limits.velocity[idx] * b.dt
-        for t in range(m):
-            lbg += [*b.lb[:, t], *(-vel)]
-            ubg += [*np.full(k, np.inf), *vel]
-        lbg += list(-vel)
-        ubg += list(vel)
+        lbg += [*b.lb[:, 0::2].T.reshape(-1), *b.lb[:, 1::2].T.reshape(-1), *np.tile(-vel, m + 1)]
+        ubg += [*np.full(k * (2 * m + 1), np.inf), *np.tile(vel, m + 1)]
         x0.append(b.Zw[1:-1].reshape(-1))
         lbx.append(np.tile(b.lo, m))
         ubx.append(np.tile(b.hi, m))
         f = f + _acc_cost(Zfull, w)
     x, g = ca.vertcat(*X), ca.vertcat(*G)
+    jac = ca.diagcat(*J)
     xs = ca.SX.sym("x", x.numel())  # the objective is quadratic: its Hessian is a constant
     H_f = ca.evalf(ca.hessian(ca.Function("f", [x], [f]).expand()(xs), xs)[0])
     lam_f, p, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("p", 0), ca.MX.sym("lam_g", g.numel())
     hess_lag = ca.Function("hess_lag", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.MX(H_f))])
+    jac_g = ca.Function("jac_g", [x, p], [g, jac])
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
-            "ipopt.tol": TOL, "ipopt.mu_init": 1e-3, "ipopt.hessian_constant": "yes", "hess_lag": hess_lag}
+            "ipopt.tol": TOL, "ipopt.mu_init": 1e-3, "ipopt.hessian_constant": "yes", "hess_lag": hess_lag,
+            "jac_g": jac_g}
     solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, opts)
-    return (solver, x, g, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
+    return (solver, x, g, jac, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
             np.asarray(lbg, float), np.asarray(ubg, float))
 
 
@@ -302,8 +341,8 @@ def optimize_paths(
     x_last = None
     for rnd in range(ROUNDS):
         t1 = time.perf_counter()
-        solver, x, g, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter)
-        jac_nnz = int(ca.jacobian_sparsity(g, x).nnz())
+        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter)
+        jac_nnz = int(jac.sparsity().nnz())
         t2 = time.perf_counter()
         build_s += t2 - t1
         res = solver(x0=x0 if x_last is None else x_last, lbx=lbx, ubx=ubx, lbg=lbg_a, ubg=ubg_a)  # re-solve: from last
@@ -318,13 +357,14 @@ def optimize_paths(
             Zi = np.clip(xs[off:off + n * (T - 2)].reshape(T - 2, n), b.lo, b.hi)  # IPOPT's bound relaxation
             off += n * (T - 2)
             Zs.append(np.vstack([b.Zw[0], Zi, b.Zw[-1]]))
-            if len(b.lb_all) and len(Zi):
-                vals = np.asarray(b.g_all.map(len(Zi))(Zi.T)).reshape(len(b.lb_all), -1).min(axis=1)
+            if len(b.lb_all):
+                pts = _checkpoints(Zs[-1])
+                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
                 bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
                 if bad.size:
                     viol = max(viol, float(np.max(b.lb_all[bad] - vals[bad])))
                     b.keep = np.r_[b.keep, bad]
-                    b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], T - 2, axis=1)])
+                    b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], len(pts), axis=1)])
                     added += bad.size
         if not added:
             break
