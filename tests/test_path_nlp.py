@@ -18,31 +18,36 @@ from rlgp_exec.scene.types import Literal
 SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"
 
 
-@pytest.fixture(scope="module")
-def planned():
-    """A two-action plan of pick_place_pr2 whose goal is block_a on the tray (level 3 on), with what
-    level 3 was given and returned."""
+def _plan_block_a(level3):
+    """Plan pick block_a, place it on the tray (pick_place_pr2, that the whole goal) with ``level3``
+    standing in for ``optimize_paths`` (same arguments). Returns (model, plan)."""
     import rlgp_exec.planning.sequence as sequence
 
-    calls = []
     real = sequence.optimize_paths
-
-    def spy(model, segments, T, **kw):
-        res = real(model, segments, T, **kw)
-        calls.append((segments, T, kw, res))
-        return res
-
-    sequence.optimize_paths = spy
+    sequence.optimize_paths = lambda model, segments, T, **kw: level3(real, model, segments, T, **kw)
     scene = load_scene(SCENES / "pick_place_pr2.toml")
     scene = replace(scene, goal=replace(scene.goal, literals=(Literal("on", ("block_a", "tray")),)))
     geo = sequence.SequenceGeometry(scene)
     try:
-        plan = geo.plan_actions([Action("pick", "block_a"), Action("place", "block_a", "tray")])
+        return geo.model, geo.plan_actions([Action("pick", "block_a"), Action("place", "block_a", "tray")])
     finally:
         sequence.optimize_paths = real
         geo.close()
+
+
+@pytest.fixture(scope="module")
+def planned():
+    """The plan of ``_plan_block_a`` with level 3 as it is, and what level 3 was given and returned."""
+    calls = []
+
+    def spy(real, model, segments, T, **kw):
+        res = real(model, segments, T, **kw)
+        calls.append((segments, T, kw, res))
+        return res
+
+    model, plan = _plan_block_a(spy)
     assert len(calls) == 1, "level 3 ran once (the first, vertical-grasp attempt)"
-    return geo.model, plan, calls[-1]
+    return model, plan, calls[-1]
 
 
 def _box_distance(p: np.ndarray, box) -> float:
@@ -124,3 +129,20 @@ def test_level3_jacobian_grows_linearly_with_the_number_of_segments(planned):
     assert n1.min() > 0
     assert np.array_equal(np.array(sizes[2]), 2 * n1)
     assert np.array_equal(np.array(sizes[4]), 4 * n1)
+
+
+def test_a_level3_path_that_collides_in_the_replay_falls_back_to_the_guided_path():
+    """Algorithm 1's replanning when level 3 fails: a level-3 path driven through the table (here made
+    so on purpose) collides in the replay; that phase gets its guided path back and the plan passes."""
+    from dataclasses import replace as dc_replace
+
+    def through_the_table(real, model, segments, T, **kw):
+        res = real(model, segments, T, **kw)
+        bad = res.paths[0].copy()
+        bad[T // 2, :2] = 0.0  # the base at the table's centre
+        return dc_replace(res, paths=(bad, *res.paths[1:]))
+
+    _, plan = _plan_block_a(through_the_table)
+    assert plan.success, plan.reason
+    assert plan.level3.fallbacks == 1 and plan.level3.acc_cost is None
+    assert np.linalg.norm(plan.phases[0].path[:, :2], axis=1).min() > 0.3  # not through the table any more

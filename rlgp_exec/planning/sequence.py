@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class _Guide:
-    """A guided path of a candidate plan: where it sits (phase, its first ``rows`` rows) and the world
+    """A guided path of a candidate plan: where it sits (the first rows of phase ``phase``) and the world
     it was planned in (for level 3's segment and for shortcutting it later)."""
 
     phase: int
@@ -311,7 +311,9 @@ class SequenceGeometry:
         log.info("level 3: %s, acceleration cost %.3g (warm start %.3g), %d iterations, %.2f s + %.2f s, "
                  "%d rows relaxed", res.reason, res.acc_cost, res.warm_acc_cost, res.iterations, res.build_s,
                  res.solve_s, res.relaxed)
-        if not res.ok:
+        if not res.ok:  # Algorithm 1's fallback: the guided paths, shortcut as without level 3
+            for g in guides:
+                phases = self._fall_back(phases, g, len(g.path))
             return phases, {}, None
         out = list(phases)
         for g, path in zip(guides, res.paths, strict=True):
@@ -330,14 +332,19 @@ class SequenceGeometry:
             if validation.ok or not hit:
                 return validation, phases, optimised
             g = optimised.pop(hit[0])
-            with self._world_of(g):
-                guide = self._shortcut(g.path)
-            ph = phases[g.phase]
-            phases = list(phases)
-            phases[g.phase] = replace(ph, path=np.vstack([guide, ph.path[self.T:]]))  # the first T rows: level 3's
+            phases = self._fall_back(phases, g, self.T)  # the first T rows: level 3's
             self.l3 = replace(self.l3, fallbacks=self.l3.fallbacks + 1)
             log.info("level 3: phase %d collides in the replay (%s): its guided path instead",
                      g.phase, validation.collisions[0])
+
+    def _fall_back(self, phases: list[Phase], g: _Guide, rows: int) -> list[Phase]:
+        """The phases with the first ``rows`` rows of g's phase replaced by g's path, greedily shortcut in
+        the world it was planned in."""
+        with self._world_of(g):
+            guide = self._shortcut(g.path)
+        out = list(phases)
+        out[g.phase] = replace(out[g.phase], path=np.vstack([guide, out[g.phase].path[rows:]]))
+        return out
 
     def _drive_round(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
         """The last resort when the graph finds no path (e.g. round a cabinet to its far side): the
@@ -443,6 +450,7 @@ class SequenceGeometry:
                 nodes_expanded,
                 None,
                 reason,
+                level3=self.l3 if self.level3 else None,
             )
 
         if not kf.ok:

@@ -54,7 +54,7 @@ from rlgp_exec.scene.geometry import Box
 __all__ = ["PathResult", "PathStatus", "Segment", "optimize_paths", "resample"]
 
 log = logging.getLogger(__name__)
-T_DEFAULT = 16  # waypoints per segment, ends included
+T_DEFAULT = 12  # waypoints per segment, ends included (with the step midpoints: 21 checkpoints)
 MARGIN = 0.01  # [m] spheres keep this from the world boxes
 BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
 SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
