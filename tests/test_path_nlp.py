@@ -106,7 +106,7 @@ def test_level3_is_smoother_than_its_warm_start(planned):
         z = level3._unwrapped(model, np.arange(model.nq), seg.warm)
         warm += acc(level3.resample(z, model.limits.velocity, T)[0])
     assert out <= warm + 1e-9
-    assert out < 0.5 * warm  # and by a real margin: the graph's waypoints zig-zag
+    assert out < 0.5 * warm  # and by a real margin: the guides bend at their waypoints
 
 
 def test_level3_plan_replays_collision_free(planned):
