@@ -186,6 +186,16 @@ def run_planner_bench(
             "steps_median": _median([r["n_steps"] for r in ok]),
             "n_nlp_median": _median([r["n_nlp"] for r in ok]),
         }
+        l3 = [(r["level3"], r["planning_time_s"]) for r in ok if r.get("level3")]
+        if l3:  # R-LGP's level 3 (full-path optimisation), over the successful runs
+            summary[name].update(
+                {
+                    "l3_time_s_median": _median([s["time_s"] for s, _ in l3]),
+                    "l3_time_share_median": _median([s["time_s"] / t for s, t in l3 if t > 0]),
+                    "l3_whole_plans": sum(s["acc_cost"] is not None for s, _ in l3) / len(l3),
+                    "l3_fallbacks_total": sum(s["fallbacks"] for s, _ in l3),
+                }
+            )
         counted = [r["counters"] for r in rs if r.get("counters")]
         if counted:  # planner-specific counters (GNPP: Table I's N0, N, NLPs), medians over the runs
             ok_counted = [r["counters"] for r in ok if r.get("counters")]

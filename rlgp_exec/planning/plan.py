@@ -2,14 +2,29 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from rlgp_exec.planning.validate import Phase, Validation
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["Plan"]
+__all__ = ["Level3Stats", "Plan"]
+
+
+@dataclass(frozen=True)
+class Level3Stats:
+    """Level 3 (full-path optimisation, ``nlp.path``) over one planning call (every candidate tried)."""
+
+    attempts: int = 0  # path NLPs solved
+    solved: int = 0  # of them feasible and not costlier than their warm start
+    used: int = 0  # candidate plans whose replay passed with level-3 paths in them
+    fallbacks: int = 0  # segments put back to the graph's path after a replay collision
+    time_s: float = 0.0  # building and solving the path NLPs [s]
+    acc_cost: float | None = None  # the returned plan's acceleration cost (its level-3 segments)
+    warm_acc_cost: float | None = None  # the same segments' warm start (graph waypoints resampled)
+    jac_nnz: int | None = None  # the last path NLP's constraint-Jacobian non-zeros
+    n_var: int | None = None  # and its variables
 
 
 @dataclass(frozen=True)
@@ -25,6 +40,7 @@ class Plan:
     validation: Validation | None
     reason: str
     counters: dict = field(default_factory=dict)  # planner-specific counts (GNPP: n0, n, nlp, ...)
+    level3: Level3Stats | None = None  # R-LGP's full-path optimisation (None: not run)
 
     @property
     def base_path_length_m(self) -> float:
@@ -49,4 +65,5 @@ class Plan:
             "nodes_expanded": self.nodes_expanded,
             "reason": self.reason,
             **({"counters": dict(self.counters)} if self.counters else {}),
+            **({"level3": asdict(self.level3)} if self.level3 is not None else {}),
         }

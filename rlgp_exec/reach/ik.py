@@ -66,11 +66,22 @@ def arm_spheres(model: RobotModel, manipulator: str | None = None, radius: float
 
 def box_sdf(p_local: ca.SX, half: np.ndarray) -> ca.SX:
     """Smooth signed distance [m] from a point (in the box frame) to a box of half extents ``half``:
-    the exact distance outside (up to 1e-4 m of smoothing), negative and ~ -depth inside."""
-    d = [ca.sqrt(p_local[i] ** 2 + 1e-9) - float(half[i]) for i in range(3)]
-    outside = ca.sqrt(sum(_smooth_pos(di) ** 2 for di in d) + 1e-8)
-    inside = -_smooth_pos(-ca.fmax(ca.fmax(d[0], d[1]), d[2]))
-    return outside + inside
+    the exact distance outside (up to 1e-4 m of smoothing), negative and ~ -depth inside. One call of
+    a CasADi function built once (the expression inlined: ~20x faster to build than op by op)."""
+    return _box_sdf_fn()(p_local, ca.DM(np.asarray(half, float).reshape(3)))
+
+
+_BOX_SDF: list[ca.Function] = []
+
+
+def _box_sdf_fn() -> ca.Function:
+    if not _BOX_SDF:
+        p, half = ca.SX.sym("p", 3), ca.SX.sym("half", 3)
+        d = [ca.sqrt(p[i] ** 2 + 1e-9) - half[i] for i in range(3)]
+        outside = ca.sqrt(sum(_smooth_pos(di) ** 2 for di in d) + 1e-8)
+        inside = -_smooth_pos(-ca.fmax(ca.fmax(d[0], d[1]), d[2]))
+        _BOX_SDF.append(ca.Function("box_sdf", [p, half], [outside + inside]))
+    return _BOX_SDF[0]
 
 
 def _smooth_pos(a: ca.SX, eps: float = 1e-6) -> ca.SX:

@@ -50,11 +50,14 @@ class Rows:
 
 
 class RobotSymbols:
-    """The robot at one symbolic configuration z = [x, y, yaw, q_arm] (the other joints fixed)."""
+    """The robot at one symbolic configuration z = [x, y, yaw, q_arm, q_extra] (``extra``: indices of
+    further joints that move, e.g. a torso lift outside the arm; the other joints fixed)."""
 
-    def __init__(self, model: RobotModel, q_nominal: FloatArray, manipulator: str | None, z: ca.SX) -> None:
+    def __init__(
+        self, model: RobotModel, q_nominal: FloatArray, manipulator: str | None, z: ca.SX, extra: tuple[int, ...] = ()
+    ) -> None:
         self.model, self.manip = model, model.manipulator(manipulator)
-        self.idx = np.array([*model.group("base"), *model.group(self.manip.group)], dtype=int)
+        self.idx = np.array([*model.group("base"), *model.group(self.manip.group), *extra], dtype=int)
         q = ca.SX(ca.DM(np.asarray(q_nominal, float)))
         for k, i in enumerate(self.idx):
             q[int(i)] = z[k]

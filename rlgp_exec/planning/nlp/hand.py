@@ -29,7 +29,15 @@ from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["arm_link_spheres", "body_obstacles", "finger_spheres", "link_box_spheres", "points_clear", "self_clear"]
+__all__ = [
+    "arm_link_spheres",
+    "body_obstacles",
+    "finger_spheres",
+    "link_box_spheres",
+    "other_arm_obstacles",
+    "points_clear",
+    "self_clear",
+]
 
 SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
 SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
@@ -154,20 +162,45 @@ def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) 
     cyl = _urdf_cylinders(model).get(parent, [])
     if cyl:
         return [(parent, Box("body", (2 * r, 2 * r, length), T, (0.0, 0.0, 0.0, 1.0))) for T, r, length in cyl]
+    lo_l, hi_l = _link_bounds(robot, model, q, parent)
+    # the shoulders are mounted on the box's front: keep only what lies SHOULDER_SETBACK behind them
+    first_joint = model.joint_names[model.group(m.group)[0]]
+    shoulder = np.linalg.solve(model.fk(q, parent), np.r_[model.fk(q, first_joint)[:3, 3], 1.0])
+    hi_l[0] = min(hi_l[0], float(shoulder[0]) - SHOULDER_SETBACK)
+    return [(parent, _bounds_box("body", lo_l, hi_l))]
+
+
+def _link_bounds(robot, model, q: FloatArray, link: str) -> tuple[FloatArray, FloatArray]:
+    """(lower (3,), upper (3,)) [m] in ``link``'s frame of a box holding its PyBullet bounding box at q."""
     robot.set_q(q)
-    lo, hi = (np.asarray(v, float) for v in p.getAABB(robot.id, robot.link_index[parent], physicsClientId=robot.client))
-    T_link = model.fk(q, parent)
+    lo, hi = (np.asarray(v, float) for v in p.getAABB(robot.id, robot.link_index[link], physicsClientId=robot.client))
+    T_link = model.fk(q, link)
     corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
                         for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    lo_l, hi_l = corners.min(axis=0), corners.max(axis=0)
-    # the shoulders are mounted on the box's front: keep only what lies SHOULDER_SETBACK behind them
-    shoulder = np.linalg.solve(T_link, np.r_[model.fk(q, model.joint_names[model.group(m.group)[0]])[:3, 3], 1.0])
-    hi_l[0] = min(hi_l[0], float(shoulder[0]) - SHOULDER_SETBACK)
+    return corners.min(axis=0), corners.max(axis=0)
+
+
+def _bounds_box(name: str, lo: FloatArray, hi: FloatArray) -> Box:
     T = np.eye(4)
-    T[:3, 3] = (lo_l + hi_l) / 2
-    size = hi_l - lo_l
-    extents = (float(size[0]), float(size[1]), float(size[2]))
-    return [(parent, Box("body", extents, T, (0.0, 0.0, 0.0, 1.0)))]
+    T[:3, 3] = (lo + hi) / 2
+    size = hi - lo
+    return Box(name, (float(size[0]), float(size[1]), float(size[2])), T, (0.0, 0.0, 0.0, 1.0))
+
+
+def other_arm_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) -> list[tuple[str, Box]]:
+    """(link, box in that link's frame) of every other manipulator's links (arm and gripper) where ``q``
+    holds them (the PR2's tucked left arm, which the right hand can otherwise sweep into): for the
+    self-clearance rows (``self_clear``) of a plan that moves one arm only."""
+    active = model.manipulator(manipulator).name
+    out = []
+    for m in model.config.manipulators:
+        if m.name == active:
+            continue
+        joints = [model.joint_names[i] for i in model.group(m.group)]
+        links = [robot.link_name[robot.joint_index[j]] for j in joints] + list(m.links)
+        for link in dict.fromkeys(links):
+            out.append((link, _bounds_box(link, *_link_bounds(robot, model, q, link))))
+    return out
 
 
 def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],

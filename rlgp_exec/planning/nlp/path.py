@@ -1,0 +1,390 @@
+"""Level 3 of LGP: full-path optimisation between fixed keyframes, one sparse NLP over every segment.
+
+Each segment is a guided path of the plan (the reachability graph's waypoints, getWaypoints, or a
+transport / drive-round chain) between two configurations fixed by level 2 (the keyframes' approach
+configurations): it is resampled to ``T`` waypoints (equal time at the model's velocity limits) and
+the ``T - 2`` inner ones are the variables. With the ends fixed the segments share no variable, so
+the whole-path NLP is block diagonal: solving it at once or segment by segment gives the same optimum
+(the keyframes act as the kinematic switches, fixed from level 2). It is solved at once here, as one
+IPOPT problem, variables ordered time-major (segment by segment, waypoint by waypoint, z = [x, y,
+yaw, q_arm, a moving torso] each), each segment's rows time-major too, so the constraint Jacobian
+(block diagonal over segments, block bidiagonal within) and the Lagrangian's Hessian (banded) grow
+linearly with the plan; both are assembled from that structure (``_nlp``).
+
+At every inner waypoint and at the midpoint of every step (``_checkpoints``), built from the shared
+factors (``nlp.factors``, ``nlp.hand``), the same the keyframe NLP and GNPP use:
+
+* arm spheres and the open fingers' spheres clear of world boxes (fixtures, drawers at their
+  openings, the objects where they stand) by ``MARGIN``; a held object (kinematic switch: fixed in
+  the tool frame for the segment, ``T_tool_obj``) as spheres covering its box, clear of them too;
+* the arm's spheres off the body it is mounted on (self-collision proxy); the base footprint off
+  fixture footprints and open drawers;
+* joint position limits (bounds) and per-step velocity limits |z_t - z_{t-1}| <= v_max dt, dt the
+  segment's step time (``SLACK`` times what the warm start needs at full speed);
+* a trust region: each arm joint within the warm start's range over the segment (+ ``PAD``): the
+  hand against its own forearm (adjacent links) is not modelled, and a straight line between the
+  ends, what the objective pulls towards, lies inside that range anyway.
+
+Objective: the weighted squared second differences (acceleration), base weighing ``W_BASE``.
+Rows far from active (slack > ``CUTOFF``) at the warm start and on the straight line between the
+ends are left out; the solution is checked against every row and a re-solve adds the violated ones.
+A row the warm start itself violates at a checkpoint (the spheres are conservative proxies of meshes
+the exact checker passed) is bounded there by the warm start's value instead (``relaxed``): never
+worse than the guide.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
+from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_clear
+from rlgp_exec.planning.nlp.keyframes import W_BASE
+from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.scene.geometry import Box
+
+__all__ = ["PathResult", "PathStatus", "Segment", "optimize_paths", "resample"]
+
+log = logging.getLogger(__name__)
+T_DEFAULT = 12  # waypoints per segment, ends included (with the step midpoints: 21 checkpoints)
+MARGIN = 0.01  # [m] spheres keep this from the world boxes
+BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
+SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
+CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are left out
+FEAS_TOL = 1e-4
+REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
+PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
+ROUNDS = 2  # solves at most (re-solves add rows the solution violates)
+TOL = 1e-4  # IPOPT's tolerance
+
+
+class PathStatus(enum.Enum):
+    OK = "ok"
+    INFEASIBLE = "infeasible"  # IPOPT ended with constraints violated
+    WORSE = "worse"  # feasible but costlier than the warm start (kept out)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One guided path to optimise and the world it moves through (all world frame)."""
+
+    warm: FloatArray  # (m, nq) m >= 2 configurations; warm[0] and warm[-1] are the fixed ends
+    boxes: tuple[Box, ...]  # obstacles: fixtures, drawers at their openings, standing objects
+    footprints: tuple[tuple[FloatArray, FloatArray], ...] = ()  # (T (4, 4), size (3,)) the base avoids
+    held: tuple[FloatArray, FloatArray] | None = None  # (size (3,) [m], T_tool_obj (4, 4)) carried
+
+
+@dataclass(frozen=True)
+class PathResult:
+    status: PathStatus
+    paths: tuple[FloatArray, ...]  # per segment (T, nq) [m, rad], wrapped; the warm starts if not ok
+    acc_cost: float  # the objective at the solution
+    warm_acc_cost: float  # the objective at the resampled warm start
+    violation: float  # largest constraint violation [m or rad]
+    durations_s: tuple[float, ...]  # per segment: (T - 1) dt [s] at which the velocity bounds hold
+    n_var: int
+    n_con: int
+    jac_nnz: int  # non-zeros of the constraint Jacobian
+    relaxed: int  # rows bounded by the warm start's value (violated there already)
+    iterations: int
+    build_s: float
+    solve_s: float
+    reason: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status is PathStatus.OK
+
+
+def _unwrapped(model: RobotModel, idx: FloatArray, path: FloatArray) -> FloatArray:
+    """(m, n) the path's base + arm coordinates, continuous joints unwrapped (the short way, as the
+    replay interpolates)."""
+    z = [np.asarray(path[0], float)[idx]]
+    for a, b in itertools.pairwise(path):
+        z.append(z[-1] + model.limits.difference(b, a)[idx])
+    return np.array(z)
+
+
+def resample(z: FloatArray, vmax: FloatArray, T: int) -> tuple[FloatArray, float]:
+    """A piecewise-linear path z (m, n) resampled to T points equally spaced in time at full speed
+    (step time max_j |dz_j| / vmax_j); returns (T, n) and the step time [s]."""
+    step_t = np.max(np.abs(np.diff(z, axis=0)) / vmax, axis=1)
+    s = np.r_[0.0, np.cumsum(step_t)]
+    if s[-1] <= 0.0:
+        return np.repeat(z[:1], T, axis=0), 0.0
+    targets = np.linspace(0.0, s[-1], T)
+    out = np.array([np.interp(targets, s, z[:, j]) for j in range(z.shape[1])]).T
+    out[0], out[-1] = z[0], z[-1]
+    return out, float(s[-1] / (T - 1))
+
+
+def _acc_cost(Z: ca.MX | FloatArray, w: FloatArray) -> ca.MX | float:
+    """Σ_t Σ_j w_j (z_{t+1} - 2 z_t + z_{t-1})_j^2 of a path Z (n, T)."""
+    acc = Z[:, 2:] - 2 * Z[:, 1:-1] + Z[:, :-2]
+    if isinstance(acc, np.ndarray):
+        return float(np.sum(w[:, None] * acc**2))
+    return ca.sum2(ca.sum1(ca.DM(w) * acc**2)) if acc.shape[1] else ca.MX(0)
+
+
+def _held_spheres(held: tuple[FloatArray, FloatArray] | None) -> list[tuple[FloatArray, float]]:
+    """Spheres (centre in the tool frame (3,), radius) covering a held box (``nlp.hand._box_cover``)."""
+    if held is None:
+        return []
+    size, T_tool_obj = held
+    return [((T_tool_obj @ np.r_[c, 1.0])[:3], r) for c, r in _box_cover(np.asarray(size, float))]
+
+
+def _self_rows(model, manip, extra, q_fixed: FloatArray, self_spheres, body) -> tuple[ca.Function, FloatArray]:
+    """(z -> the self-clearance rows (``self_clear``), their lower bounds): the same for every segment."""
+    z = ca.SX.sym("z", len(model.group("base")) + len(model.group(manip.group)) + len(extra))
+    rs = RobotSymbols(model, q_fixed, manip.name, z, extra)
+    rows = Rows.empty()
+    self_clear(model, rs.q, list(self_spheres), list(body), rows)
+    return ca.Function("self_rows", [z], [ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)]), np.asarray(rows.lower)
+
+
+def _rows(model, manip, extra, seg: Segment, z: ca.SX, hand, self_rows: tuple[ca.Function, FloatArray]) -> Rows:
+    """Every collision row of one waypoint of ``seg`` (z symbolic: base, arm, the ``extra`` joints)."""
+    rs = RobotSymbols(model, seg.warm[0], manip.name, z, extra)
+    rows = Rows.empty()
+    boxes = _near(model, rs, seg)
+    box_clear(rs, boxes, rows, margin=MARGIN)
+    points_clear(rs.T_tool, [*hand, *_held_spheres(seg.held)], boxes, rows, margin=MARGIN)
+    g_self = self_rows[0](z)
+    for i, lb in enumerate(self_rows[1]):
+        rows.add(g_self[i], float(lb), ca.inf)
+    footprint_clear(rs, list(seg.footprints), rows, margin=BASE_MARGIN)
+    return rows
+
+
+def _near(model, rs: RobotSymbols, seg: Segment) -> list[Box]:
+    """The boxes of ``seg`` within REACH + CUTOFF of an arm sphere's centre or the tool at some
+    warm-start waypoint: the rest cannot come near active and their rows are never built."""
+    frames = {rs.manip.tool_frame, *(f for f, _ in rs.spheres)}
+    pts = np.array([model.fk(q, f)[:3, 3] for q in seg.warm for f in frames])
+    out = []
+    for b in seg.boxes:
+        local = (np.linalg.inv(b.T) @ np.c_[pts, np.ones(len(pts))].T)[:3].T
+        d = np.linalg.norm(np.maximum(np.abs(local) - np.asarray(b.size) / 2, 0.0), axis=1).min()
+        if d < REACH + CUTOFF:
+            out.append(b)
+    return out
+
+
+@dataclass
+class _Block:
+    """A segment's part of the NLP: its step function (waypoint rows kept + velocity) and bounds."""
+
+    Zw: FloatArray  # (T, n) resampled warm start
+    dt: float
+    lo: FloatArray  # (n,) bounds of the waypoints: joint limits, the arm within the warm start's range
+    hi: FloatArray
+    g_all: ca.Function  # z -> every collision row
+    lb_all: FloatArray
+    g_expr: list[ca.SX]
+    z: ca.SX
+    zp: ca.SX
+    keep: FloatArray  # indices of the rows in the NLP
+    lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
+    # the warm start violates them)
+    relaxed: int
+
+
+def _checkpoints(Z: FloatArray) -> FloatArray:
+    """(2 T - 3, n) where a path Z (T, n) is checked, in time order: the midpoint of every step and every
+    inner waypoint (mid 0-1, waypoint 1, mid 1-2, ..., waypoint T-2, mid T-2 - T-1). The midpoints catch
+    what a waypoint-only check lets a step cut through (a base passing a cabinet's corner)."""
+    mids = (Z[1:] + Z[:-1]) / 2
+    out = np.empty((2 * len(Z) - 3, Z.shape[1]))
+    out[0::2], out[1::2] = mids, Z[1:-1]
+    return out
+
+
+def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
+    """Resample ``seg``'s warm start and build its rows; keep those near active (module docstring)."""
+    n = len(idx)
+    zs = _unwrapped(model, idx, seg.warm)
+    vmax = model.limits.velocity[idx]
+    Zw, tau = resample(zs, vmax, T)
+    z, zp = ca.SX.sym("z", n), ca.SX.sym("zp", n)
+    rows = _rows(model, manip, extra, seg, z, hand, self_rows)
+    g_all = ca.Function("g_all", [z], [ca.vertcat(*rows.g)] if rows.g else [ca.SX(0, 1)])
+    lb_all = np.asarray(rows.lower, float)
+    lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
+    lo[model.limits.continuous[idx]], hi[model.limits.continuous[idx]] = -np.inf, np.inf
+    lo[3:], hi[3:] = np.maximum(lo[3:], zs[:, 3:].min(axis=0) - PAD), np.minimum(hi[3:], zs[:, 3:].max(axis=0) + PAD)
+    pts = _checkpoints(Zw)
+    blk = _Block(Zw, SLACK * tau, lo, hi, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int),
+                 np.zeros((0, len(pts))), 0)
+    if len(lb_all):
+        vals = np.asarray(g_all.map(len(pts))(pts.T)).reshape(len(lb_all), -1)
+        # near active at the warm start or on the straight line between the ends (where the
+        # objective pulls): the rows the solution is likely to meet
+        line = Zw[0] + np.linspace(0.0, 1.0, T)[1:-1, None] * (Zw[-1] - Zw[0])
+        on_line = np.asarray(g_all.map(len(line))(line.T)).reshape(len(lb_all), -1)
+        low = np.minimum(vals.min(axis=1), on_line.min(axis=1))
+        keep = np.flatnonzero(low - lb_all < CUTOFF)
+        lb = np.minimum(lb_all[keep, None], vals[keep] - 1e-6)  # per checkpoint: never below the warm start
+        blk.keep, blk.lb, blk.relaxed = keep, lb, int(np.sum(vals[keep] < lb_all[keep, None]))
+    return blk
+
+
+def _selectors(n: int, m: int) -> tuple[ca.DM, ca.DM]:
+    """Constant sparse maps from a segment's inner waypoints x = vec(Z_inner) (n m,) to its m + 1 step
+    midpoints (0.5 I on both neighbours; the fixed ends add a constant) and to its m + 1 steps
+    z_{t+1} - z_t (I, -I)."""
+    S, D = np.zeros((n * (m + 1), n * m)), np.zeros((n * (m + 1), n * m))
+    eye = np.eye(n)
+    for t in range(m + 1):
+        rows = slice(t * n, (t + 1) * n)
+        if t >= 1:
+            S[rows, (t - 1) * n:t * n], D[rows, (t - 1) * n:t * n] = 0.5 * eye, -eye
+        if t < m:
+            S[rows, t * n:(t + 1) * n], D[rows, t * n:(t + 1) * n] = 0.5 * eye, eye
+    return ca.sparsify(ca.DM(S)), ca.sparsify(ca.DM(D))
+
+
+def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int):
+    """The whole-path NLP of ``blocks``: (solver, x, g, x0, lbx, ubx, lbg, ubg). Variables time-major;
+    a segment's rows: its collision rows at the step midpoints, at the waypoints, then its velocity
+    rows, each group time-major. IPOPT gets both derivatives assembled from their structure: the
+    constraint Jacobian from one dense (k, n) block per checkpoint (``jat``, mapped) placed on the
+    block diagonal (midpoints: through the constant selector); the Hessian of the Lagrangian is the
+    objective's alone (constant, banded; the collision rows' curvature left out, as sequential
+    convexification does: the exact one cost ~4x the time per solve for the same paths on
+    pick_place_pr2)."""
+    n, m = len(idx), T - 2
+    S, D = _selectors(n, m)
+    X, G, J, lbg, ubg, x0, lbx, ubx, f = [], [], [], [], [], [], [], [], 0
+    for b in blocks:
+        Zi = ca.MX.sym("Z", n, m)
+        X.append(ca.vec(Zi))
+        Zfull = ca.horzcat(ca.DM(b.Zw[0]), Zi, ca.DM(b.Zw[-1]))
+        Mid = (Zfull[:, 1:] + Zfull[:, :-1]) / 2
+        g_kept = ca.vertcat(*[b.g_expr[i] for i in b.keep]) if len(b.keep) else ca.SX(0, 1)
+        k = int(g_kept.numel())
+        at = ca.Function("at", [b.z], [g_kept])
+        jat = ca.Function("jat", [b.z], [ca.jacobian(g_kept, b.z)])
+        G += [ca.vec(at.map(m + 1)(Mid)), ca.vec(at.map(m)(Zi)), ca.vec(Zfull[:, 1:] - Zfull[:, :-1])]
+        if k:
+            J_mid = ca.mtimes(ca.diagcat(*ca.horzsplit(jat.map(m + 1)(Mid), n)), ca.MX(S))
+            J_way = ca.diagcat(*ca.horzsplit(jat.map(m)(Zi), n))
+        else:
+            J_mid, J_way = ca.MX(0, n * m), ca.MX(0, n * m)
+        J.append(ca.vertcat(J_mid, J_way, ca.MX(D)))
+        vel = model.limits.velocity[idx] * b.dt
+        lbg += [*b.lb[:, 0::2].T.reshape(-1), *b.lb[:, 1::2].T.reshape(-1), *np.tile(-vel, m + 1)]
+        ubg += [*np.full(k * (2 * m + 1), np.inf), *np.tile(vel, m + 1)]
+        x0.append(b.Zw[1:-1].reshape(-1))
+        lbx.append(np.tile(b.lo, m))
+        ubx.append(np.tile(b.hi, m))
+        f = f + _acc_cost(Zfull, w)
+    x, g = ca.vertcat(*X), ca.vertcat(*G)
+    jac = ca.diagcat(*J)
+    xs = ca.SX.sym("x", x.numel())  # the objective is quadratic: its Hessian is a constant
+    H_f = ca.evalf(ca.hessian(ca.Function("f", [x], [f]).expand()(xs), xs)[0])
+    lam_f, p, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("p", 0), ca.MX.sym("lam_g", g.numel())
+    hess_lag = ca.Function("hess_lag", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.MX(H_f))])
+    jac_g = ca.Function("jac_g", [x, p], [g, jac])
+    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+            "ipopt.tol": TOL, "ipopt.mu_init": 1e-3, "ipopt.hessian_constant": "yes", "hess_lag": hess_lag,
+            "jac_g": jac_g}
+    solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, opts)
+    return (solver, x, g, jac, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
+            np.asarray(lbg, float), np.asarray(ubg, float))
+
+
+def optimize_paths(
+    model: RobotModel,
+    segments: Sequence[Segment],
+    T: int = T_DEFAULT,
+    manipulator: str | None = None,
+    hand: Sequence[tuple[FloatArray, float]] = (),
+    self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
+    body: Sequence[tuple[str, Box]] = (),
+    max_iter: int = 200,
+    cache: dict | None = None,
+) -> PathResult:
+    """Optimise every segment's path at once (module docstring). ``hand``: finger spheres (tool frame,
+    ``nlp.hand.finger_spheres``); ``self_spheres``/``body``: the self-collision proxy
+    (``nlp.hand.arm_link_spheres``, ``nlp.hand.body_obstacles``), the same in every call given one
+    ``cache`` (a dict the caller keeps: the self-clearance rows are built once there). T >= 3."""
+    if T < 3:
+        raise ValueError(f"optimize_paths: T must be at least 3, got {T}")
+    t0 = time.perf_counter()
+    manip = model.manipulator(manipulator)
+    core = [*model.group("base"), *model.group(manip.group)]
+    moving = {int(j) for s in segments for j in np.flatnonzero(np.ptp(np.asarray(s.warm), axis=0) > 1e-9)}
+    extra = tuple(sorted(moving - set(core)))  # e.g. the PR2's torso, raised for a transport
+    idx = np.array([*core, *extra], dtype=int)
+    n = len(idx)
+    w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
+    key = ("self_rows", extra, np.asarray(segments[0].warm[0], float).tobytes())
+    self_rows = cache.get(key) if cache is not None else None
+    if self_rows is None:
+        self_rows = _self_rows(model, manip, extra, segments[0].warm[0], self_spheres, body)
+        if cache is not None:
+            cache[key] = self_rows
+    blocks = [_block(model, manip, idx, extra, seg, T, hand, self_rows) for seg in segments]
+    rows_s = time.perf_counter() - t0
+    warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
+    build_s, solve_s = rows_s, 0.0
+    iterations = 0
+    x_last = None
+    for rnd in range(ROUNDS):
+        t1 = time.perf_counter()
+        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter)
+        jac_nnz = int(jac.sparsity().nnz())
+        t2 = time.perf_counter()
+        build_s += t2 - t1
+        res = solver(x0=x0 if x_last is None else x_last, lbx=lbx, ubx=ubx, lbg=lbg_a, ubg=ubg_a)  # re-solve: from last
+        solve_s += time.perf_counter() - t2
+        iterations += int(solver.stats().get("iter_count", 0))
+        xs = x_last = np.asarray(res["x"]).reshape(-1)
+        gv = np.asarray(res["g"]).reshape(-1)
+        viol = float(np.max(np.r_[lbg_a - gv, gv - ubg_a, 0.0]))
+        # every row, also those left out, at the solution: add the violated ones and solve again
+        Zs, added, off = [], 0, 0
+        for b in blocks:
+            Zi = np.clip(xs[off:off + n * (T - 2)].reshape(T - 2, n), b.lo, b.hi)  # IPOPT's bound relaxation
+            off += n * (T - 2)
+            Zs.append(np.vstack([b.Zw[0], Zi, b.Zw[-1]]))
+            if len(b.lb_all):
+                pts = _checkpoints(Zs[-1])
+                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
+                bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
+                if bad.size:
+                    viol = max(viol, float(np.max(b.lb_all[bad] - vals[bad])))
+                    b.keep = np.r_[b.keep, bad]
+                    b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], len(pts), axis=1)])
+                    added += bad.size
+        if not added:
+            break
+        log.debug("level 3 round %d (%d iterations): %d rows left out were violated; solving again", rnd,
+                  solver.stats().get("iter_count", 0), added)
+    cost = float(res["f"])
+    relaxed = sum(b.relaxed for b in blocks)
+    if viol > FEAS_TOL:
+        why = solver.stats()["return_status"]
+        status, reason = PathStatus.INFEASIBLE, f"constraints violated by {viol:.2e} ({why})"
+    elif cost > warm_cost + 1e-9:
+        status, reason = PathStatus.WORSE, f"acceleration cost {cost:.3g} > warm start's {warm_cost:.3g}"
+    else:
+        status, reason = PathStatus.OK, "ok"
+    paths = []
+    for seg, Z in zip(segments, Zs if status is PathStatus.OK else [b.Zw for b in blocks], strict=True):
+        q = np.repeat(np.asarray(seg.warm[:1], float), len(Z), axis=0)
+        q[:, idx] = Z
+        paths.append(np.array([model.limits.wrap(qi) for qi in q]))
+    return PathResult(
+        status, tuple(paths), cost, warm_cost, viol, tuple(b.dt * (T - 1) for b in blocks), int(x.numel()),
+        int(g.numel()), jac_nnz, relaxed, iterations, build_s, solve_s, reason,
+    )

@@ -1,0 +1,148 @@
+"""Level 3 (``planning.nlp.path``): the full-path NLP on real guided paths of pick_place_pr2."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rlgp_exec.planning.nlp import path as level3
+from rlgp_exec.planning.nlp.keyframes import W_BASE, Action
+from rlgp_exec.reach.ik import arm_spheres
+from rlgp_exec.scene import load_scene
+from rlgp_exec.scene.types import Literal
+
+SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"
+
+
+def _plan_block_a(level3):
+    """Plan pick block_a, place it on the tray (pick_place_pr2, that the whole goal) with ``level3``
+    standing in for ``optimize_paths`` (same arguments). Returns (model, plan)."""
+    import rlgp_exec.planning.sequence as sequence
+
+    real = sequence.optimize_paths
+    sequence.optimize_paths = lambda model, segments, T, **kw: level3(real, model, segments, T, **kw)
+    scene = load_scene(SCENES / "pick_place_pr2.toml")
+    scene = replace(scene, goal=replace(scene.goal, literals=(Literal("on", ("block_a", "tray")),)))
+    geo = sequence.SequenceGeometry(scene)
+    try:
+        return geo.model, geo.plan_actions([Action("pick", "block_a"), Action("place", "block_a", "tray")])
+    finally:
+        sequence.optimize_paths = real
+        geo.close()
+
+
+@pytest.fixture(scope="module")
+def planned():
+    """The plan of ``_plan_block_a`` with level 3 as it is, and what level 3 was given and returned."""
+    calls = []
+
+    def spy(real, model, segments, T, **kw):
+        res = real(model, segments, T, **kw)
+        calls.append((segments, T, kw, res))
+        return res
+
+    model, plan = _plan_block_a(spy)
+    assert len(calls) == 1, "level 3 ran once (the first, vertical-grasp attempt)"
+    return model, plan, calls[-1]
+
+
+def _box_distance(p: np.ndarray, box) -> float:
+    """Exact distance [m] from a world point to a box (0 inside), numpy: independent of the NLP's sdf."""
+    local = np.linalg.solve(box.T, np.r_[p, 1.0])[:3]
+    return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(box.size) / 2, 0.0)))
+
+
+def test_level3_paths_keep_their_ends_limits_and_velocities(planned):
+    model, _, (segments, T, _, res) = planned
+    assert res.ok, res.reason
+    lim = model.limits
+    for seg, path, duration in zip(segments, res.paths, res.durations_s, strict=True):
+        assert path.shape == (T, model.nq)
+        assert np.abs(lim.difference(path[0], seg.warm[0])).max() < 1e-9  # the fixed ends (keyframe side)
+        assert np.abs(lim.difference(path[-1], seg.warm[-1])).max() < 1e-9
+        bounded = ~lim.continuous
+        assert np.all(path[:, bounded] >= lim.lower[bounded] - 1e-6)
+        assert np.all(path[:, bounded] <= lim.upper[bounded] + 1e-6)
+        step = np.array([np.abs(lim.difference(b, a)) for a, b in itertools.pairwise(path)])
+        assert np.all(step <= lim.velocity * duration / (T - 1) + 1e-6)
+
+
+def test_level3_keeps_the_arm_spheres_off_the_world_boxes(planned):
+    """Every arm sphere at least its radius + MARGIN from every box at every inner waypoint, unless the
+    warm start itself came closer there (those rows are bounded by the warm start's value)."""
+    model, _, (segments, T, _, res) = planned
+    spheres = arm_spheres(model)
+    checked = 0
+    for seg, path in zip(segments, res.paths, strict=True):
+        z = level3._unwrapped(model, np.arange(model.nq), seg.warm)
+        warm, _ = level3.resample(z, model.limits.velocity, T)
+        for k in range(1, T - 1):
+            for frame, r in spheres:
+                p_out = model.fk(path[k], frame)[:3, 3]
+                p_warm = model.fk(model.limits.wrap(warm[k]), frame)[:3, 3]
+                for box in seg.boxes:
+                    need = min(r + level3.MARGIN, _box_distance(p_warm, box))
+                    assert _box_distance(p_out, box) >= need - 2e-3, (frame, box.name, k)
+                    checked += 1
+    assert checked > 0
+
+
+def test_level3_is_smoother_than_its_warm_start(planned):
+    """The acceleration cost of the returned paths, recomputed here, is at most the resampled guide's."""
+    model, _, (segments, T, _, res) = planned
+    w = np.r_[np.full(3, W_BASE), np.ones(model.nq - 3)]
+
+    def acc(z: np.ndarray) -> float:
+        a = z[2:] - 2 * z[1:-1] + z[:-2]
+        return float(np.sum(w * a**2))
+
+    out = sum(acc(level3._unwrapped(model, np.arange(model.nq), p)) for p in res.paths)
+    warm = 0.0
+    for seg in segments:
+        z = level3._unwrapped(model, np.arange(model.nq), seg.warm)
+        warm += acc(level3.resample(z, model.limits.velocity, T)[0])
+    assert out <= warm + 1e-9
+    assert out < 0.5 * warm  # and by a real margin: the guides bend at their waypoints
+
+
+def test_level3_plan_replays_collision_free(planned):
+    """The plan with the level-3 paths in it passes the PyBullet replay (1 cm steps) with none of them
+    put back to its guided path."""
+    _, plan, _ = planned
+    assert plan.success, plan.reason
+    assert plan.level3 is not None and plan.level3.used == 1 and plan.level3.fallbacks == 0
+    assert plan.level3.acc_cost is not None and plan.level3.acc_cost <= plan.level3.warm_acc_cost
+
+
+def test_level3_jacobian_grows_linearly_with_the_number_of_segments(planned):
+    model, _, (segments, T, kw, _) = planned
+    seg = segments[0]
+    sizes = {}
+    for k in (1, 2, 4):
+        r = level3.optimize_paths(model, [seg] * k, T, max_iter=1, **kw)
+        sizes[k] = (r.n_var, r.n_con, r.jac_nnz)
+    n1 = np.array(sizes[1])
+    assert n1.min() > 0
+    assert np.array_equal(np.array(sizes[2]), 2 * n1)
+    assert np.array_equal(np.array(sizes[4]), 4 * n1)
+
+
+def test_a_level3_path_that_collides_in_the_replay_falls_back_to_the_guided_path():
+    """Algorithm 1's replanning when level 3 fails: a level-3 path driven through the table (here made
+    so on purpose) collides in the replay; that phase gets its guided path back and the plan passes."""
+    from dataclasses import replace as dc_replace
+
+    def through_the_table(real, model, segments, T, **kw):
+        res = real(model, segments, T, **kw)
+        bad = res.paths[0].copy()
+        bad[T // 2, :2] = 0.0  # the base at the table's centre
+        return dc_replace(res, paths=(bad, *res.paths[1:]))
+
+    _, plan = _plan_block_a(through_the_table)
+    assert plan.success, plan.reason
+    assert plan.level3.fallbacks == 1 and plan.level3.acc_cost is None
+    assert np.linalg.norm(plan.phases[0].path[:, :2], axis=1).min() > 0.3  # not through the table any more
