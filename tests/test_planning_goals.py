@@ -135,3 +135,20 @@ def test_a_plan_starts_with_a_drawer_out_and_closes_it():
     assert plan.success, plan.reason
     assert plan.actions == ("(take_knob cabinet)", "(close_drawer cabinet)")
     assert plan.validation is not None and plan.validation.final_openings["cabinet"] < 0.01
+
+
+def test_the_planners_budget_clock_counts_cpu_not_waiting():
+    """R-LGP's and GNPP's budgets run on ``cpu_clock``: time spent waiting (a loaded machine, a sleep)
+    does not use them up; computing does."""
+    import time
+
+    from rlgp_exec.planning.budget import cpu_clock
+
+    c0 = cpu_clock()
+    time.sleep(0.4)
+    assert cpu_clock() - c0 < 0.1
+    c1, t1 = cpu_clock(), time.perf_counter()
+    n = 0
+    while time.perf_counter() - t1 < 0.4:
+        n += 1
+    assert cpu_clock() - c1 > 0.0 and n > 0

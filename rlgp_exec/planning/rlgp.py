@@ -23,6 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
@@ -44,7 +45,7 @@ log = logging.getLogger(__name__)
 PLANNERS = ("rlgp", "lgp")
 PER_ACTION = 1.0
 UNREACHABLE = 1e3
-TIME_BUDGET_S = 90.0  # [s] planning time after which no new candidate is tried
+TIME_BUDGET_S = 90.0  # [s] CPU time (``budget.cpu_clock``) after which no new candidate is tried
 GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
@@ -121,11 +122,11 @@ def plan_scene(
     memory: PlannerMemory | None = None,
 ) -> Plan:
     """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not.
-    No new candidate is started after ``time_budget_s`` [s] (the one under way finishes). ``memory``
+    No new candidate is started after ``time_budget_s`` [s] of CPU time (the one under way finishes). ``memory``
     keeps the reachability graph, and what this call teaches it, for the next call."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_clock()
     try:
         problem = ground_scene(scene, manipulators=[goal_manipulator(scene)])
     except SymbolicError as e:  # before any geometry: a bad goal is named at once
@@ -154,14 +155,14 @@ def plan_scene(
         for k, cand in enumerate(search):
             if k >= max_candidates:
                 break
-            if time.perf_counter() - t0 > time_budget_s:
+            if cpu_clock() - c0 > time_budget_s:
                 first = reasons[0] if reasons else "none"
-                return failed(f"timed out: {time_budget_s:.0f} s budget spent on {k} candidates; first: {first}")
+                return failed(f"timed out: {time_budget_s:.0f} s CPU budget spent on {k} candidates; first: {first}")
             actions = to_actions(cand.actions)
             if isinstance(actions, str):
                 reasons.append(actions)
                 continue
-            result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0, deadline=t0 + time_budget_s)
+            result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0, deadline=c0 + time_budget_s)
             log.info("%s candidate %d %s: %s", planner, k, cand, result.reason)
             if result.success:
                 return result

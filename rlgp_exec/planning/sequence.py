@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger_spheres, other_arm_obstacles
@@ -224,11 +225,11 @@ class SequenceGeometry:
     ) -> Plan:
         """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
         leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails.
-        ``deadline`` (``time.perf_counter()`` [s]): no new keyframe start or tilt after it."""
+        ``deadline`` (``budget.cpu_clock()`` [s]): no new keyframe start or tilt after it."""
         t0 = time.perf_counter() if t_start is None else t_start
         reasons = []
         for tilt in (0.0, 0.6):
-            if reasons and deadline is not None and time.perf_counter() > deadline:
+            if reasons and deadline is not None and cpu_clock() > deadline:
                 break
             result = self._attempt(actions, planner, nodes_expanded, t0, tilt, deadline)
             if result.success:

@@ -11,28 +11,21 @@ Every solve goes through ``Checker`` (counts, optional database).
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
+from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.solver import FEAS_TOL, Feasibility, GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "cpu_clock", "find_conflict"]
+__all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
 FILTER_MAX = 60  # conflicts up to this size are made minimal (QuickXplain)
 FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable (object poses only)
-
-
-def cpu_clock() -> float:
-    """CPU time [s] of this process and of its finished children (Fast Downward): the clock of GNPP's
-    budget. The paper reports CPU time; a wall-clock budget on a shared machine measures its load."""
-    t = os.times()
-    return t.user + t.system + t.children_user + t.children_system
 
 
 @dataclass(frozen=True)

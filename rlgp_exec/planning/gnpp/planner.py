@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.gnpp.conflicts import (
     FILTER_MAX,
     FILTER_MAX_NO_ROBOT,
@@ -29,7 +30,6 @@ from rlgp_exec.planning.gnpp.conflicts import (
     Conflict,
     DeadlineError,
     ExtractOptions,
-    cpu_clock,
     find_conflict,
 )
 from rlgp_exec.planning.gnpp.database import SubgraphDB

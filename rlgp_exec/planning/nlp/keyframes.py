@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
@@ -441,7 +442,7 @@ def solve_keyframes(
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
     nodes near x, nearest first); every other start uses them, the rest a random free base heading.
-    ``deadline`` (``time.perf_counter()`` [s]): no new start after it (the best so far is returned).
+    ``deadline`` (``budget.cpu_clock()`` [s]): no new start after it (the best so far is returned).
     After a PyBullet rejection the next attempt restarts only the rejected keyframes.
     ``cache``: a dict the caller keeps; the NLP built for this sequence is kept there and reused by the
     next call for the same sequence (another ``max_tilt``: only the tilt bounds differ)."""
@@ -488,7 +489,7 @@ def solve_keyframes(
     best = None
     keep: dict[int, FloatArray] = {}  # keyframes of a rejected solution that PyBullet accepted
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
-        if _attempt and deadline is not None and time.perf_counter() > deadline:
+        if _attempt and deadline is not None and cpu_clock() > deadline:
             log.info("keyframes: deadline reached after %d starts", _attempt)
             break
         init: list[FloatArray] = []
