@@ -116,7 +116,7 @@ def _submit_all(
         except Exception as e:  # e.g. Dask's KilledWorker: a worker died natively on this job, thrice
             seed, name = jobs[k]
             out[k] = _failed(name, seed, f"lost: {type(e).__name__}: {e}", t0)
-        _report(out[futures[fut]][0], done, len(jobs))  # type: ignore[index]
+        _report(out[k][0], done, len(jobs))  # type: ignore[index]
     return out  # type: ignore[return-value]
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pybullet as p
@@ -61,6 +62,15 @@ class Validation:
         return self.collision_free and self.goal_met
 
 
+class _Held(NamedTuple):
+    """An object in a hand during the replay."""
+
+    tool: str  # the tool frame holding it
+    T_tool_obj: FloatArray  # (4, 4) its pose in that frame, frozen at the grasp
+    rest: float  # its penetration into its support when it was grasped [m] (<= 0)
+    hand: frozenset[str]  # the links of the hand holding it (they may touch it)
+
+
 def _region_rect(scene: Scene, name: str) -> tuple[FloatArray, tuple[float, float], float] | None:
     from rlgp_exec.planning.nlp.keyframes import _target_surface
 
@@ -102,13 +112,11 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     world = build_world(scene, tags=False)
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
-    # per held object: the tool frame holding it, T_tool_obj, its penetration into its support when it
-    # was grasped [m] and the links of the hand holding it (two arms may hold one object each)
-    held: dict[str, tuple[str, FloatArray, float, frozenset[str]]] = {}
+    held: dict[str, _Held] = {}  # two arms may hold one object each
     try:
         if scene.start.held is not None:  # in the hand from the start (a replan mid-task)
             man = model.manipulator(scene.start.arm)
-            held[scene.start.held] = (man.tool_frame, scene.start.T_tool_obj, 0.0, frozenset(man.links))
+            held[scene.start.held] = _Held(man.tool_frame, scene.start.T_tool_obj, 0.0, frozenset(man.links))
             robot.ignore_body(world.objects[scene.start.held])
         for k, ph in enumerate(phases):
             tool = model.manipulator(ph.arm).tool_frame
@@ -130,7 +138,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                         collisions.append(f"phase {k}: {violation}")
                         break
                 for o in moving:
-                    world.set_object_pose(o, model.fk(q, held[o][0]) @ held[o][1])
+                    world.set_object_pose(o, model.fk(q, held[o].tool) @ held[o].T_tool_obj)
                 for c in robot.contacts(tolerance):
                     name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
                     if ph.grasp is not None and name == ph.grasp and c.link in fingers:
@@ -140,11 +148,11 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                     collisions.append(f"phase {k}: robot {c.link} ~ {name}")
                 for o in moving:
                     for c in p.getContactPoints(bodyA=world.objects[o], physicsClientId=client):
-                        if c[2] != robot.id and c[8] < held[o][2] - tolerance:
+                        if c[2] != robot.id and c[8] < held[o].rest - tolerance:
                             collisions.append(f"phase {k}: held {o} ~ {world.body_name(c[2])}")
                         elif c[2] == robot.id and c[8] < -tolerance:
                             link = robot.link_name.get(c[4], str(c[4]))
-                            if link not in held[o][3]:
+                            if link not in held[o].hand:
                                 collisions.append(f"phase {k}: held {o} ~ robot {link}")
                 if collisions:
                     break
@@ -165,7 +173,7 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
                         if c[2] != robot.id
                     ]
                 )
-                held[ph.grasp] = (tool, held_T, rest, fingers)
+                held[ph.grasp] = _Held(tool, held_T, rest, fingers)
             if ph.release is not None:
                 robot.ignore_body(world.objects[ph.release], False)
                 held.pop(ph.release, None)
