@@ -247,10 +247,8 @@ def plan_gnpp(
             blocked_plans += 1
             reasons.append(laid)
             continue
-        phases, keyframes, transits = laid
-        fallbacks: dict = {}
-        if traj is not None:
-            phases, fallbacks = traj.optimise(phases, transits)
+        straight, keyframes, transits = laid
+        phases, fallbacks = traj.optimise(straight, transits) if traj is not None else (list(straight), {})
         validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
         if traj is not None:
             traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
@@ -260,7 +258,7 @@ def plan_gnpp(
             variant,
             names,
             keyframes,
-            phases,
+            tuple(phases),
             time.perf_counter() - t0,
             solver.n_solves,
             0,

@@ -72,8 +72,9 @@ class Trajectories:
         """The phases with every arm's moves optimised (those of an arm whose NLP failed unchanged), and
         the original of each phase changed (the fallback for the replay). One move per phase at most
         (``phases_of``'s). ``stats.acc_cost``: this plan's optimised moves (None if none was)."""
-        out, originals = list(phases), {}
-        acc, warm_acc = None, None
+        out, originals = list(phases), dict[int, Phase]()
+        acc: float | None = None
+        warm_acc: float | None = None
         for arm in self.lib.arms:
             mine = [t for t in transits
                     if t.arm == arm and np.ptp(phases[t.phase].path[t.row:t.row + 2], axis=0).max() > 1e-9]
