@@ -29,7 +29,7 @@ from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
-from rlgp_exec.planning.validate import Phase, validate_plan
+from rlgp_exec.planning.validate import Phase, validate_with_fallbacks
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
@@ -322,20 +322,14 @@ class SequenceGeometry:
 
     def _replay(self, phases: list[Phase], optimised: dict[int, _Guide]):
         """validate_plan; a collision in a level-3 phase puts that phase back to its guide (shortcut) and
-        replays again, until the replay passes or collides elsewhere. Returns (validation, phases, the
-        level-3 phases still in them)."""
-        optimised = dict(optimised)
-        while True:
-            validation = validate_plan(self.scene, phases)
-            hit = [k for k in optimised if any(c.startswith(f"phase {k}:") for c in validation.collisions)]
-            if validation.ok or not hit:
-                return validation, phases, optimised
-            g = optimised.pop(hit[0])
-            phases = list(phases)  # the first T rows of g's phase are level 3's: the guide instead
-            phases[g.phase] = replace(phases[g.phase], path=np.vstack([g.path, phases[g.phase].path[self.T:]]))
-            self.l3 = replace(self.l3, fallbacks=self.l3.fallbacks + 1)
-            log.info("level 3: phase %d collides in the replay (%s): its guided path instead",
-                     g.phase, validation.collisions[0])
+        replays again (``validate_with_fallbacks``). Returns (validation, phases, the level-3 phases
+        still in them)."""
+        # the first T rows of a level-3 phase are level 3's: its guide instead
+        fallbacks = {k: replace(phases[k], path=np.vstack([g.path, phases[k].path[self.T:]]))
+                     for k, g in optimised.items()}
+        validation, out, kept = validate_with_fallbacks(self.scene, phases, fallbacks)
+        self.l3 = replace(self.l3, fallbacks=self.l3.fallbacks + len(optimised) - len(kept))
+        return validation, out, {k: g for k, g in optimised.items() if k in kept}
 
     def _drive_round(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
         """The last resort when the graph finds no path (e.g. round a cabinet to its far side): the

@@ -15,7 +15,8 @@ drawer of the phase's ``knob``; an object released with ``fall`` drops straight 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import logging
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -27,8 +28,9 @@ from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.types import Literal
 
-__all__ = ["Phase", "Validation", "goal_holds", "validate_plan"]
+__all__ = ["Phase", "Validation", "goal_holds", "validate_plan", "validate_with_fallbacks"]
 
+log = logging.getLogger(__name__)
 ON_TOLERANCE = 0.01  # [m] an object "on" a surface: its bottom within this of the surface
 
 
@@ -191,6 +193,25 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
     return Validation(
         not collisions, not unmet and not collisions, tuple(dict.fromkeys(collisions)), tuple(unmet), poses, openings
     )
+
+
+def validate_with_fallbacks(
+    scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase]
+) -> tuple[Validation, list[Phase], set[int]]:
+    """``validate_plan``; while the replay collides in a phase that has a fallback (an optimised path's
+    original: level 3, GNPP's trajectories), that phase goes back to its fallback and the plan is
+    replayed again, until it passes or collides elsewhere. Returns (validation, the phases, the indices
+    of the phases still on their optimised paths)."""
+    out, kept = list(phases), set(fallbacks)
+    while True:
+        validation = validate_plan(scene, out)
+        hit = sorted(k for k in kept if any(c.startswith(f"phase {k}:") for c in validation.collisions))
+        if validation.ok or not hit:
+            return validation, out, kept
+        kept.discard(hit[0])
+        out[hit[0]] = fallbacks[hit[0]]
+        log.info("phase %d collides in the replay (%s): its path before optimisation instead",
+                 hit[0], validation.collisions[0])
 
 
 def interpolate_path(world, a: FloatArray, b: FloatArray, step: float) -> FloatArray:

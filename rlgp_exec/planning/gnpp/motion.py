@@ -8,14 +8,15 @@ it (grasp or release). A mobile arm's ``end-move`` is the drive to the base of t
 (``start-move`` lifts the hand): the arm held in one posture (its own, folded with an empty hand, or
 raised), the base straight if that motion is free, else round the fixtures by OMPL on the base alone,
 each motion checked in PyBullet with the resting objects and the held one (``reach.ompl_plan.drive_base``,
-as R-LGP drives). This is not the paper's 20-waypoint trajectory optimisation: the replay
-(``validate_plan``) decides.
+as R-LGP drives). Each acting arm's move to its approach configuration is also returned as a
+``Transit``: the straight motion the paper's trajectory stage re-optimises (``gnpp.trajectory``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -26,10 +27,22 @@ from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["LIFT", "phases_of"]
+__all__ = ["LIFT", "Transit", "phases_of"]
 
 LIFT = 0.10  # [m]
 DRIVE_TIMEOUT = 2.0  # [s] OMPL's time for a base path round the fixtures (per posture tried)
+
+
+class Transit(NamedTuple):
+    """An acting arm's straight move between two rows of a phase's path (``row`` -> ``row + 1``): from
+    where the plan left it to ``LIFT`` above its next keyframe; the other arms are at their start
+    postures meanwhile."""
+
+    phase: int  # index into the phases
+    row: int  # the move's first row in the phase's path
+    arm: str
+    held: tuple[str, FloatArray] | None  # (object, T_tool_obj (4, 4)) the arm carries
+    resting: dict[str, FloatArray]  # the objects in no hand: world pose (4,) [x, y, z, yaw]
 
 
 def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> FloatArray | None:
@@ -71,14 +84,15 @@ def _drive(
 
 def phases_of(
     lib: FactorLib, ik: TopIK, actions: Sequence[GroundAction], values: Mapping[Var, FloatArray]
-) -> tuple[tuple[Phase, ...], FloatArray] | str:
-    """(phases, keyframes (n, nq)) or the reason no path could be laid out."""
+) -> tuple[tuple[Phase, ...], FloatArray, tuple[Transit, ...]] | str:
+    """(phases, keyframes (n, nq), the acting arms' transits) or the reason no path could be laid out."""
     arms = lib.arms
     cur = {m: lib.home_q(m) for m in arms}
     low = dict.fromkeys(arms, False)
     holding: dict[str, str] = {}
     phases: list[Phase] = []
     keyframes = []
+    transits: list[Transit] = []
 
     def full() -> FloatArray:
         return lib.full_q(cur)
@@ -130,6 +144,11 @@ def phases_of(
         pre = _lift(lib, ik, m, q_k)
         if pre is None:
             return f"no approach {LIFT} m above the keyframe of {a}"
+        still = [o for o in lib.objects if o not in holding.values()]
+        carrying = holding.get(m)
+        grip = None if carrying is None else (carrying, rel_T(values[Var("x", carrying, k)], lib.upright(m)))
+        resting = {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in still}
+        transits.append(Transit(len(phases), len(path) - 1, m, grip, resting))
         cur[m] = pre
         path.append(full())
         cur[m] = q_k
@@ -148,4 +167,4 @@ def phases_of(
         return why
     carried = tuple(holding.items())
     phases.append(Phase(np.array(path), None, carried=carried))
-    return tuple(phases), np.array(keyframes).reshape(len(keyframes), -1)
+    return tuple(phases), np.array(keyframes).reshape(len(keyframes), -1), tuple(transits)

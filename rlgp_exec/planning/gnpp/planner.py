@@ -39,6 +39,7 @@ from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
 from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.gnpp.trajectory import Trajectories
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.symbolic import (
@@ -53,7 +54,7 @@ from rlgp_exec.planning.symbolic import (
     reformulate,
     solve_ground,
 )
-from rlgp_exec.planning.validate import validate_plan
+from rlgp_exec.planning.validate import validate_with_fallbacks
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import Scene
 
@@ -121,11 +122,13 @@ def plan_gnpp(
     timeout_s: float = 60.0,
     max_iterations: int = 300,
     memory: PlannerMemory | None = None,
+    trajectories: bool = True,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
     is CPU time (``cpu_clock``: this process and Fast Downward), the paper's measure: the same
-    budget on a loaded machine takes longer, not fewer NLPs."""
+    budget on a loaded machine takes longer, not fewer NLPs. ``trajectories``: each arm's moves of a
+    solved plan optimised as 20 waypoints (``gnpp.trajectory``), else its straight motions."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     opts = VARIANTS[variant]
@@ -133,6 +136,7 @@ def plan_gnpp(
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
+    traj = Trajectories(lib) if trajectories else None
     if lib.mobile:
         solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)
     db = None
@@ -243,20 +247,24 @@ def plan_gnpp(
             blocked_plans += 1
             reasons.append(laid)
             continue
-        phases, keyframes = laid
-        validation = validate_plan(scene, phases)
+        straight, keyframes, transits = laid
+        phases, fallbacks = traj.optimise(straight, transits) if traj is not None else (list(straight), {})
+        validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
+        if traj is not None:
+            traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
         names = tuple(str(a) for a in actions)
         plan = Plan(
             validation.ok,
             variant,
             names,
             keyframes,
-            phases,
+            tuple(phases),
             time.perf_counter() - t0,
             solver.n_solves,
             0,
             validation,
             "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet]),
+            level3=None if traj is None else traj.stats,
         )
         if validation.ok:
             return result(GnppStatus.SOLVED, "ok", plan, it)
