@@ -118,11 +118,13 @@ def test_the_replay_catches_a_held_object_in_the_robots_own_body(scene):
         assert hits == (where or set()), v.collisions
 
 
-def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
-    """The PR2's fingers are meshes (no NLP spheres): the PyBullet keyframe check must see the objects
-    where they stand, or a grasp between close blocks puts a fingertip ~1 cm into the neighbour
-    (pick_place_pr2, randomised seed 2: block_a 8 cm from block_c). Keyframes also stay inside the
-    joint limits (IPOPT's bound relaxation leaves them up to ~1e-8 outside)."""
+@pytest.mark.parametrize("mesh_rows", [False, True])
+def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects(mesh_rows):
+    """The PR2's fingers are meshes: the PyBullet keyframe check must see the objects where they stand,
+    or a grasp between close blocks puts a fingertip ~1 cm into the neighbour (pick_place_pr2,
+    randomised seed 2: block_a 8 cm from block_c), with the fingertip spheres in the NLP (``mesh_hand``)
+    or without. Keyframes also stay inside the joint limits (IPOPT's bound relaxation leaves them up to
+    ~1e-8 outside)."""
     from rlgp_exec.planning.sequence import SequenceGeometry
     from rlgp_exec.scene.randomize import randomize
     from sim.world import build_world
@@ -134,6 +136,7 @@ def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
         kf = solve_keyframes(
             geo.model, scene, geo.q0, acts, seed=2, in_collision=geo._in_collision, ik=geo.ik, hand=geo.hand,
             self_spheres=geo.self_spheres, body=geo.body, lift_room=0.12,
+            mesh_hand=geo.mesh_hand if mesh_rows else (),
         )
     finally:
         geo.close()
