@@ -118,11 +118,13 @@ def test_the_replay_catches_a_held_object_in_the_robots_own_body(scene):
         assert hits == (where or set()), v.collisions
 
 
-def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
-    """The PR2's fingers are meshes (no NLP spheres): the PyBullet keyframe check must see the objects
-    where they stand, or a grasp between close blocks puts a fingertip ~1 cm into the neighbour
-    (pick_place_pr2, randomised seed 2: block_a 8 cm from block_c). Keyframes also stay inside the
-    joint limits (IPOPT's bound relaxation leaves them up to ~1e-8 outside)."""
+@pytest.mark.parametrize("mesh_rows", [False, True])
+def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects(mesh_rows):
+    """The PR2's fingers are meshes: the PyBullet keyframe check must see the objects where they stand,
+    or a grasp between close blocks puts a fingertip ~1 cm into the neighbour (pick_place_pr2,
+    randomised seed 2: block_a 8 cm from block_c), with the fingertip spheres in the NLP (``mesh_hand``)
+    or without. Keyframes also stay inside the joint limits (IPOPT's bound relaxation leaves them up to
+    ~1e-8 outside)."""
     from rlgp_exec.planning.sequence import SequenceGeometry
     from rlgp_exec.scene.randomize import randomize
     from sim.world import build_world
@@ -134,6 +136,7 @@ def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects():
         kf = solve_keyframes(
             geo.model, scene, geo.q0, acts, seed=2, in_collision=geo._in_collision, ik=geo.ik, hand=geo.hand,
             self_spheres=geo.self_spheres, body=geo.body, lift_room=0.12,
+            mesh_hand=geo.mesh_hand if mesh_rows else (),
         )
     finally:
         geo.close()
@@ -290,3 +293,95 @@ def test_merged_constraints_equal_the_rows():
         assert a.shape == (len(rows.g),)
         assert np.allclose(a, b, rtol=0.0, atol=1e-12)
     assert _constraints(Rows.empty()).shape == (0, 1)
+
+
+def test_mesh_finger_spheres_hold_every_fingertip_vertex():
+    """The PR2's fingertips are meshes: every vertex of their hulls (tool frame) lies inside one of the
+    spheres, and the spheres are not much fatter than the tip is thick."""
+    import pybullet as p
+
+    from rlgp_exec.planning.nlp.hand import mesh_finger_spheres
+    from rlgp_exec.planning.sequence import SequenceGeometry
+    from rlgp_exec.robot.pybullet_body import pose_to_matrix
+
+    geo = SequenceGeometry(load_scene(SORTING.parent / "pick_place_pr2.toml"))
+    try:
+        robot, model = geo.checker.robot, geo.model
+        spheres = mesh_finger_spheres(robot, model, geo.q0)
+        assert spheres and max(r for _, r in spheres) < 0.025
+        robot.set_q(geo.q0)
+        T_tool = model.fk(geo.q0, model.manipulator().tool_frame)
+        tips = [n for n in model.manipulator().links if "tip" in n]
+        assert tips
+        for name in tips:
+            i = robot.link_index[name]
+            st = p.getLinkState(robot.id, i, computeForwardKinematics=True, physicsClientId=robot.client)
+            v = np.asarray(p.getMeshData(robot.id, i, collisionShapeIndex=0, flags=p.MESH_DATA_SIMULATION_MESH,
+                                         physicsClientId=robot.client)[1])
+            # the vertices as PyBullet collides them: inside the link's bounding box
+            lo, hi = (np.asarray(b) for b in p.getAABB(robot.id, i, physicsClientId=robot.client))
+            w = (pose_to_matrix(st[0], st[1]) @ np.c_[v, np.ones(len(v))].T)[:3].T
+            assert np.all(w >= lo - 1e-6) and np.all(w <= hi + 1e-6)
+            v_tool = (np.linalg.solve(T_tool, np.c_[w, np.ones(len(w))].T)[:3]).T
+            for x in v_tool:
+                assert min(np.linalg.norm(x - c) - r for c, r in spheres) <= 1e-9
+    finally:
+        geo.close()
+
+
+def test_a_pick_pinned_into_a_neighbour_is_infeasible_before_any_start():
+    """pick_place_pr2 seed 3: block_b's grasp point is 41 mm from block_c, the tool sphere needs 43 mm
+    (radius 35 + HAND_MARGIN 8): every start of the NLP ended 2 mm short. The check says so at once,
+    and not once block_c has been taken away, nor for a neighbour as far as the margin asks."""
+    from dataclasses import replace
+
+    from rlgp_exec.planning.nlp.keyframes import HAND_MARGIN, pinned_conflict
+    from rlgp_exec.scene.randomize import randomize
+
+    scene = randomize(load_scene(SORTING.parent / "pick_place_pr2.toml"), 3)
+    model = load_robot("pr2")
+    why = pinned_conflict(model, scene, [Action("pick", "block_b")])
+    assert why is not None and "block_c" in why
+    c_first = [Action("pick", "block_c"), Action("place", "block_c", "tray"), Action("pick", "block_b")]
+    assert pinned_conflict(model, scene, c_first) is None
+    res = solve_keyframes(model, scene, model.home(scene.robot.base, scene.robot.joints), [Action("pick", "block_b")])
+    assert not res.ok and "block_c" in res.reason
+    # block_c turned to face block_b's grasp point and set straight away from it, its near face as far
+    # as the sphere needs plus ``extra`` [m]
+    b, c = scene.object("block_b"), scene.object("block_c")
+    away = (c.T[:2, 3] - b.T[:2, 3]) / np.linalg.norm(c.T[:2, 3] - b.T[:2, 3])
+    for extra, expect_conflict in ((0.002, False), (-0.002, True)):
+        x, y = b.T[:2, 3] + away * (0.035 + HAND_MARGIN + extra + c.size[0] / 2)
+        pose = (float(x), float(y), c.pose[2], float(np.arctan2(away[1], away[0])))
+        objs = [replace(o, pose=pose) if o.name == "block_c" else o for o in scene.objects]
+        moved = replace(scene, objects=tuple(objs))
+        assert (pinned_conflict(model, moved, [Action("pick", "block_b")]) is not None) == expect_conflict
+
+
+def test_a_box_at_an_expression_pose_gives_the_rows_of_the_same_box_at_a_number():
+    """``points_clear_moving`` (an object set down at another keyframe) and ``points_clear`` (a box where
+    it stands) agree when the pose is a number, at random hand poses."""
+    import casadi as ca
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.planning.nlp.factors import Rows
+    from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving
+    from rlgp_exec.scene.geometry import Box
+
+    rng = np.random.default_rng(1)
+    T_sym = ca.SX.sym("T", 4, 4)
+    spheres = [(rng.uniform(-0.05, 0.05, 3), float(rng.uniform(0.01, 0.03))) for _ in range(5)]
+    for _ in range(20):
+        T_box = np.eye(4)
+        T_box[:3, :3] = Rotation.from_euler("z", rng.uniform(-3, 3)).as_matrix()
+        T_box[:3, 3] = rng.uniform(-0.2, 0.2, 3)
+        size = rng.uniform(0.03, 0.12, 3)
+        T_tool = np.eye(4)
+        T_tool[:3, :3] = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+        T_tool[:3, 3] = rng.uniform(-0.2, 0.2, 3)
+        a, b = Rows.empty(), Rows.empty()
+        points_clear(ca.SX(ca.DM(T_tool)), spheres, [Box("o", tuple(size), T_box, (0, 0, 0, 1))], a, margin=0.005)
+        points_clear_moving(ca.SX(ca.DM(T_tool)), spheres, T_sym, size, b, margin=0.005)
+        f = ca.Function("f", [T_sym], [ca.vertcat(*b.g)])
+        assert np.allclose(np.asarray(ca.evalf(ca.vertcat(*a.g))).ravel(), np.asarray(f(T_box)).ravel(), atol=1e-12)
+        assert a.lower == pytest.approx(b.lower) and a.upper == b.upper

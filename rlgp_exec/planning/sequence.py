@@ -25,7 +25,13 @@ import numpy as np
 from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
-from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger_spheres, other_arm_obstacles
+from rlgp_exec.planning.nlp.hand import (
+    arm_link_spheres,
+    body_obstacles,
+    finger_spheres,
+    mesh_finger_spheres,
+    other_arm_obstacles,
+)
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
@@ -86,6 +92,7 @@ class SequenceGeometry:
         self.rg = ReachabilityPlanner(self.graph, self.ik, self.checker, rng_seed=seed)
         self.drawers = drawer_views(scene)
         self.hand = finger_spheres(self.checker.robot, self.model, self.q0)
+        self.mesh_hand = mesh_finger_spheres(self.checker.robot, self.model, self.q0)  # keyframes only
         self.self_spheres = arm_link_spheres(self.model)
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         # level 3's self-clearance: the body and the other arms where q0 has them (built once, in _path_cache)
@@ -394,6 +401,7 @@ class SequenceGeometry:
             seeds=self._graph_seeds,
             deadline=deadline,
             cache=self._nlp_cache,
+            mesh_hand=self.mesh_hand,
         )
         empty = np.zeros((0, self.model.nq))
 

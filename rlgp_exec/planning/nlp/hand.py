@@ -34,8 +34,10 @@ __all__ = [
     "body_obstacles",
     "finger_spheres",
     "link_box_spheres",
+    "mesh_finger_spheres",
     "other_arm_obstacles",
     "points_clear",
+    "points_clear_moving",
     "self_clear",
 ]
 
@@ -89,6 +91,52 @@ def link_box_spheres(robot, model, q: FloatArray, links: Sequence[str]) -> list[
     return out
 
 
+def _grid_cover(lo: FloatArray, hi: FloatArray, cell: float) -> list[tuple[FloatArray, float]]:
+    """Spheres (centre (3,), radius [m]) covering the box [lo, hi] (its frame): a grid of cells no longer
+    than ``cell`` [m] along any axis, one sphere round each cell (radius: the cell's half diagonal)."""
+    size = np.maximum(np.asarray(hi, float) - np.asarray(lo, float), 1e-6)
+    n = np.maximum(1, np.ceil(size / cell - 1e-9)).astype(int)
+    step = size / n
+    r = float(np.linalg.norm(step)) / 2
+    return [(np.asarray(lo, float) + (np.array(ijk) + 0.5) * step, r)
+            for ijk in itertools.product(*(range(int(k)) for k in n))]
+
+
+def mesh_finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
+    """(centre in the tool frame (3,) [m], radius [m]) spheres on the fingertips' *mesh* collision shapes
+    (the links named ``*tip*``, else every finger link) at ``q`` (the hand open; ``finger_spheres``
+    covers box shapes): each mesh's vertices (its convex hull, what PyBullet collides) bounded by a box
+    in the mesh's principal axes, covered by a grid of cells about as long as the box is thin (the
+    PR2's tips: 6 spheres each, radius 1.8 cm, 7 mm proud of the tip's faces; none on the HSR's box
+    fingers). The keyframe NLP keeps them off the objects, for which PyBullet's keyframe check otherwise
+    rejects a solution (PR2 fingertips a centimetre into a neighbouring block: one restart each)."""
+    fingers = [n for n in model.manipulator().links if "finger" in n]
+    links = [n for n in fingers if "tip" in n] or fingers
+    robot.set_q(q)
+    T_tool = model.fk(q, model.manipulator().tool_frame)
+    out: list[tuple[FloatArray, float]] = []
+    for name in links:
+        i = robot.link_index[name]
+        st = p.getLinkState(robot.id, i, computeForwardKinematics=True, physicsClientId=robot.client)
+        T_com = pose_to_matrix(st[0], st[1])
+        for k, d in enumerate(p.getCollisionShapeData(robot.id, i, physicsClientId=robot.client)):
+            if d[2] != p.GEOM_MESH:
+                continue
+            mesh = p.getMeshData(robot.id, i, collisionShapeIndex=k, flags=p.MESH_DATA_SIMULATION_MESH,
+                                 physicsClientId=robot.client)
+            v = np.asarray(mesh[1], float)  # in the link's inertial frame, the shape's offset and scale applied
+            if len(v) < 4:
+                continue
+            v_tool = (np.linalg.solve(T_tool, T_com @ np.c_[v, np.ones(len(v))].T)[:3]).T
+            centre = v_tool.mean(axis=0)
+            axes = np.linalg.svd(v_tool - centre, full_matrices=False)[2]  # rows: principal axes
+            local = (v_tool - centre) @ axes.T
+            lo, hi = local.min(axis=0), local.max(axis=0)
+            for c, r in _grid_cover(lo, hi, 1.1 * max(float(np.min(hi - lo)), 0.01)):
+                out.append((centre + axes.T @ c, r))
+    return out
+
+
 def points_clear(
     T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], boxes: list[Box], rows: Rows, margin: float = 0.0
 ) -> None:
@@ -100,6 +148,19 @@ def points_clear(
             pw = T_tool[:3, :3] @ ca.DM(c) + T_tool[:3, 3]
             pl = ca.DM(Tinv[:3, :3]) @ pw + ca.DM(Tinv[:3, 3])
             rows.add(box_sdf(pl, half), r + margin, ca.inf)
+
+
+def points_clear_moving(
+    T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], T_box: ca.SX, size: FloatArray, rows: Rows,
+    margin: float = 0.0,
+) -> None:
+    """``points_clear`` for one box whose pose T_world_box (4, 4) is itself an expression (an object set
+    down at another keyframe: the hand there times the grasp); its rotation is taken as rigid."""
+    half = np.asarray(size, float) / 2
+    R, t = T_box[:3, :3], T_box[:3, 3]
+    for c, r in spheres:
+        pw = T_tool[:3, :3] @ ca.DM(c) + T_tool[:3, 3]
+        rows.add(box_sdf(R.T @ (pw - t), half), r + margin, ca.inf)
 
 
 def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:

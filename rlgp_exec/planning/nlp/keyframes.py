@@ -40,9 +40,10 @@ from rlgp_exec.planning.nlp.factors import (
     grasp_top_round,
     inside_rectangle,
 )
-from rlgp_exec.planning.nlp.hand import points_clear, self_clear
+from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_clear
 from rlgp_exec.planning.nlp.poses import object_poses_after
-from rlgp_exec.reach.ik import ReachIK, base_circles, box_sdf
+from rlgp_exec.reach.checker import CLEARANCE
+from rlgp_exec.reach.ik import ReachIK, arm_spheres, base_circles, box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
@@ -59,6 +60,7 @@ HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
+FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) the fingers may reach sideways
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
@@ -199,6 +201,57 @@ def _rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
     return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2]) / 2, 0.0)))
 
 
+GRASP_DEPTH = 0.025  # [m] a top grasp's tool point below the object's top (``grasp_top``'s default)
+
+
+def pinned_conflict(
+    model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None
+) -> str | None:
+    """The reason no keyframe NLP of ``actions`` can be feasible, found without building it: a pick pins
+    the tool point (its grasp row: GRASP_DEPTH below the object's top centre), so the tool sphere's
+    clearance rows against the fixtures (ARM_MARGIN) and the objects standing where the scene put them
+    (HAND_MARGIN) are numbers there; one below its bound by more than FEAS_TOL fails every start
+    (pick_place_pr2 seed 3: a block 4 cm from another, 16 starts of ~1 s at both tilts, each ending
+    1.99 mm short). None if no pick is pinned into an obstacle."""
+    manip = model.manipulator(manipulator)
+    r_tool = [r for f, r in arm_spheres(model, manip.name) if f == manip.tool_frame]
+    if not r_tool:
+        return None
+    fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
+    objs = {o.name: o for o in scene.objects}
+    moved = {scene.start.held} if scene.start.held is not None else set()
+    for a in actions:
+        if a.name == "pick" and a.obj in objs:
+            o = objs[a.obj]
+            top = o.T[:3, 3] + np.array([0.0, 0.0, o.size[2] / 2 - min(GRASP_DEPTH, o.size[2] / 2)])
+            still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
+            for b, margin in [*((b, ARM_MARGIN) for b in fixture_bx), *((b, HAND_MARGIN) for b in still)]:
+                local = np.linalg.solve(b.T, np.r_[top, 1.0])[:3]
+                d = float(ca.evalf(box_sdf(ca.SX(ca.DM(local)), np.asarray(b.size) / 2)))
+                if d < r_tool[0] + margin - FEAS_TOL:
+                    return (f"{a}: its grasp point is {d * 1e3:.1f} mm from {b.name} (the tool sphere needs "
+                            f"{(r_tool[0] + margin) * 1e3:.1f} mm)")
+        if a.name in ("pick", "place", "drop"):
+            moved.add(a.obj)
+    return None
+
+
+def _site_disc(
+    scene: Scene, a: Action, poses: dict[str, FloatArray], drawers: dict, openings: dict[str, float]
+) -> tuple[FloatArray, float]:
+    """Where action a's hand goes, as a disc in the world plane: (centre x y (2,), radius [m]); the
+    object's footprint for a pick, the target rectangle for a place or drop, the knob for a drawer."""
+    if a.name == "pick":
+        return poses[a.obj][:2, 3], float(np.hypot(*scene.object(a.obj).size[:2])) / 2
+    if a.name in DRAWER_ACTIONS or a.target is None:
+        return drawers[a.obj].T_world_knob(openings[a.obj])[:2, 3], 0.0
+    if a.name == "drop":
+        T, half = drawers[a.target].drop_rect(max(openings[a.target], drawers[a.target].travel), 0.0)
+        return T[:2, 3], float(np.hypot(*half))
+    T, half, _ = _target_surface(scene, a.target)
+    return T[:2, 3], float(np.hypot(*half))
+
+
 def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatArray]) -> dict[str, FloatArray]:
     """The objects that are obstacles at action a's keyframe (T_world_obj): all but the one being
     grasped, set down or dropped (in or round the open hand), where they stand before the action; for
@@ -271,6 +324,7 @@ def _build(
     lift_room: float,
     objs: dict,
     drawers: dict,
+    mesh_hand: Sequence[tuple[FloatArray, float]] = (),
 ) -> _Problem:
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
@@ -287,6 +341,9 @@ def _build(
     footprints_at: list[list[tuple[FloatArray, FloatArray]]] = []  # (T, size) the base must avoid, per keyframe
     moved: set[str] = set()
     set_down: dict[str, list[tuple[str, ca.SX, float]]] = {}  # target -> (object, its x y, radius [m])
+    # object -> (T_world_obj where an earlier keyframe put it (an expression), the target's centre x y and
+    # half diagonal [m])
+    placed: dict[str, tuple[ca.SX, FloatArray, float]] = {}
     held: str | None = scene.start.held  # the start's grasp: T_tool_obj is fixed, the kinematic switch
     knob: str | None = None
     grasp: ca.SX | None = None if held is None else ca.DM(scene.start.T_tool_obj)
@@ -321,6 +378,17 @@ def _build(
             # the vertical approach from above then starts from a configuration the graph accepts
             points_clear(rs.T_tool, list(hand), fixture_bx + still_bx, rows, margin=HAND_MARGIN)
             points_clear(rs.T_tool, list(hand), finger_bx, rows)  # the drawers: knob grasps come close
+        # mesh fingers (the PR2's) keep PyBullet's keyframe clearance from the standing objects, and every
+        # finger from the objects set down at earlier keyframes (where those keyframes put them)
+        if mesh_hand or placed:
+            site, r_site = _site_disc(scene, a, poses, drawers, openings)
+            near = [b for b in still_bx
+                    if np.linalg.norm(b.T[:2, 3] - site) < r_site + float(np.hypot(*b.size[:2])) / 2 + FINGER_REACH]
+            points_clear(rs.T_tool, list(mesh_hand), near, rows, margin=CLEARANCE)
+            for m, (T_m, xy_m, r_m) in placed.items():
+                if m != a.obj and np.linalg.norm(xy_m - site) < r_site + r_m + FINGER_REACH:
+                    points_clear_moving(rs.T_tool, [*hand, *mesh_hand], T_m, np.asarray(objs[m].size), rows,
+                                        margin=CLEARANCE)
         labels += [f"{a} clearance"] * (len(rows.g) - n0)
         n0 = len(rows.g)
         open_rects = [(v.T_world_drawer(openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
@@ -349,6 +417,7 @@ def _build(
                 tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held = a.obj
+            placed.pop(a.obj, None)
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
         elif a.name in ("place", "drop"):
             if held != a.obj or grasp is None or a.target is None:
@@ -375,6 +444,8 @@ def _build(
                 gap = DROP_GAP if a.name == "drop" else PLACE_GAP
                 rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
+            if a.name == "place":  # a dropped object falls: where it lands is not this expression
+                placed[a.obj] = (T_obj, *_site_disc(scene, a, poses, drawers, openings))
             moved.add(a.obj)
             held, grasp = None, None
         if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
@@ -429,6 +500,7 @@ def solve_keyframes(
     seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
     deadline: float | None = None,
     cache: dict | None = None,
+    mesh_hand: Sequence[tuple[FloatArray, float]] = (),
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
@@ -436,7 +508,8 @@ def solve_keyframes(
     obstacles there, T_world_obj where they stand) rejects a solution. ``max_tilt`` [rad]: how far from
     vertical a grasp's approach may lean. ``ik``: a ReachIK to reuse (its solver is built once).
     ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
-    ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
+    ``mesh_hand``: spheres on the fingers' mesh shapes (``nlp.hand.mesh_finger_spheres``), kept off the
+    objects only; ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
     (``nlp.hand.body_obstacles``).
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
@@ -459,12 +532,18 @@ def solve_keyframes(
             raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
         if a.name == "drop" and a.target not in drawers:
             raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
+    conflict = pinned_conflict(model, scene, actions, manipulator)
+    if conflict is not None:
+        log.info("keyframes: infeasible before any start: %s", conflict)
+        return KeyframeResult(False, np.zeros((0, model.nq)), (), (), math.inf, math.inf,
+                              (time.perf_counter() - t0) * 1e3, f"infeasible grasp: {conflict}")
     ik = ik if ik is not None else ReachIK(model, scene, q_start, manipulator)
     key = (tuple(actions), manipulator, lift_room, id(ik))
     prob = cache.get(key) if cache is not None else None
     if prob is None:
         prob = _build(
-            model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers
+            model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers,
+            mesh_hand,
         )
         if cache is not None:  # one sequence at a time: its tilts share the NLP
             cache.clear()
@@ -481,6 +560,8 @@ def solve_keyframes(
     def solve(x0: FloatArray, w_m: float, w_s: float, z_seed: FloatArray) -> tuple[dict, float, str]:
         """One IPOPT run: (result, largest constraint violation, the worst row's label)."""
         r = solver(x0=x0, p=np.r_[w_m, w_s, z_seed], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        st = solver.stats()
+        log.debug("keyframes solve (%d rows): %s, %d iterations", lbg.size, st["return_status"], st["iter_count"])
         g = np.asarray(r["g"]).reshape(-1)
         over = np.maximum(lbg - g, g - ubg)
         v = float(np.max(np.r_[over, 0.0]))
