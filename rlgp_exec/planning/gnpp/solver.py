@@ -43,6 +43,11 @@ IPOPT = {
     "ipopt.acceptable_compl_inf_tol": 1e20,
     "ipopt.acceptable_obj_change_tol": 1e20,
     "ipopt.hessian_approximation": "limited-memory",
+    # IPOPT's heuristics for problems likely infeasible (the restoration phase entered sooner, left only
+    # after more reduction of the violation): an "infeasible" verdict otherwise runs to the iteration
+    # limit. Measured on the recorded NLPs of a tower and a Hanoi plan (1185 solves, replayed): the
+    # same verdict on every one, 40-50 % fewer IPOPT iterations in all
+    "ipopt.expect_infeasible_problem": "yes",
 }
 
 
