@@ -374,3 +374,29 @@ def test_block_beyond_every_base_pose_reach_is_infeasible():
     kinds = {f.kind for c in res.conflict_factors for f in c.factors}
     assert {"Kin", "ColFix"} <= kinds
     assert all("EqualBase" not in {f.kind for f in c.factors} for c in res.conflict_factors)
+
+
+def test_a_hand_lifts_off_a_keyframe_straight_up_its_orientation_kept(pr2):
+    """The open fingers stand 1-2 cm from a block just let go of (or about to be grasped): the lift off a
+    keyframe (and the descent onto it, the same rows reversed) must keep the tool on its vertical line
+    and its orientation along the joint-space interpolation the replay follows. One IK solution 10 cm up
+    (the former lift) turned the hand by 0.02-0.2 rad on this table, and its fingers hit the block."""
+    from rlgp_exec.planning.gnpp.motion import LIFT, _lift
+
+    lib = FactorLib(pr2, load_scene(SCENES / "obstacles_tower_pr2.toml"))
+    ik = TopIK(lib)
+    for arm, point in [("left_arm", (-0.35, 0.15, 0.80)), ("right_arm", (0.0, 0.05, 0.80))]:
+        ok, q = ik.solve(arm, np.array(point), lib.home_q(arm))
+        assert ok, (arm, point)
+        up = _lift(lib, ik, arm, q)
+        assert up is not None
+        rows = list(np.atleast_2d(up))  # the rows above q, the last LIFT up
+        tool = pr2.manipulator(arm).tool_frame
+        T0 = pr2.fk(lib.full_q({arm: q}), tool)
+        for a, b in zip([q, *rows[:-1]], rows, strict=True):
+            for s in np.linspace(0.0, 1.0, 11):
+                T = pr2.fk(lib.full_q({arm: a + s * (b - a)}), tool)
+                assert np.linalg.norm(T[:2, 3] - T0[:2, 3]) < 1e-3  # [m] off the vertical line
+                angle = np.arccos(np.clip((np.trace(T0[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+                assert angle < 5e-3, (arm, point, angle)  # [rad]
+        assert abs(T[2, 3] - T0[2, 3] - LIFT) < 1e-3

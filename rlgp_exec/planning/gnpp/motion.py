@@ -2,9 +2,10 @@
 
 The keyframes are the solved arm configurations at each action. Between them each action is one
 phase of straight joint-space segments: every arm left at a keyframe first lifts its hand
-``LIFT`` straight up (IK, posture kept); every other arm then returns to its start posture (one that
-holds an object takes it along); the acting arm moves to ``LIFT`` above its keyframe, then down onto
-it (grasp or release). A mobile arm's ``end-move`` is the drive to the base of the next keyframes
+``LIFT`` straight up (``LIFT_STEPS`` rows on a vertical line, the tool's orientation kept); every
+other arm then returns to its start posture (one that holds an object takes it along); the acting arm
+moves to ``LIFT`` above its keyframe, then down onto it along the same vertical line (grasp or
+release). A mobile arm's ``end-move`` is the drive to the base of the next keyframes
 (``start-move`` lifts the hand): the arm held in one posture (its own, folded with an empty hand, or
 raised), the base straight if that motion is free, else round the fixtures by OMPL on the base alone,
 each motion checked in PyBullet with the resting objects and the held one (``reach.ompl_plan.drive_base``,
@@ -30,6 +31,9 @@ from rlgp_exec.robot.model import FloatArray
 __all__ = ["LIFT", "Transit", "phases_of"]
 
 LIFT = 0.10  # [m]
+LIFT_STEPS = 5  # rows of a lift (2 cm apart): straight up in the world, not only in joint space
+LIFT_NEWTON = 20  # damped least-squares iterations per row at most
+LIFT_TOL = 1e-3  # [m, rad] a lift row's largest position or orientation error
 DRIVE_TIMEOUT = 2.0  # [s] OMPL's time for a base path round the fixtures (per posture tried)
 
 
@@ -45,10 +49,50 @@ class Transit(NamedTuple):
     resting: dict[str, FloatArray]  # the objects in no hand: world pose (4,) [x, y, z, yaw]
 
 
-def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> FloatArray | None:
+def _straight_up(lib: FactorLib, arm: str, q: FloatArray) -> list[FloatArray] | None:
+    """The arm's variables (``LIFT_STEPS`` rows, ``q`` excluded) that raise its tool ``LIFT`` straight up
+    in the world frame in equal steps, the tool's orientation kept (damped least squares on the arm's
+    joints, a mobile base held); None if a step misses by more than ``LIFT_TOL`` or leaves the joint
+    limits, or the top one breaks ``ColFix`` (the fixtures; on the PR2 also its wrist-flex bound: a
+    wrist flexed further folds the fingers onto the forearm, seen in the replay when this was left out)."""
+    model, tool = lib.model, lib.model.manipulator(arm).tool_frame
+    idx = lib.arm_index(arm)
+    cols = idx[3:] if lib.mobile else idx  # the joints that move: not a mobile arm's base
+    lo, hi = lib.var_bounds("q", arm)
+    full = lib.full_q({arm: q})
+    T0 = model.fk(full, tool)
+    rows = []
+    for i in range(1, LIFT_STEPS + 1):
+        target = T0[:3, 3] + np.array([0.0, 0.0, LIFT * i / LIFT_STEPS])
+        for _ in range(LIFT_NEWTON):
+            T = model.fk(full, tool)
+            err = np.r_[target - T[:3, 3], 0.5 * (np.cross(T[:3, 0], T0[:3, 0]) + np.cross(T[:3, 1], T0[:3, 1])
+                                                  + np.cross(T[:3, 2], T0[:3, 2]))]
+            if np.abs(err).max() < 1e-5:
+                break
+            J = model.jacobian(full, tool)[:, cols]
+            full[cols] += J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(6), err)
+        qa = full[idx]
+        if np.abs(err).max() > LIFT_TOL or np.any(qa < lo - 1e-9) or np.any(qa > hi + 1e-9):
+            return None
+        rows.append(qa.copy())
+    col = lib.factor(("ColFix", arm))
+    g = np.asarray(col.fn(rows[-1])).reshape(-1)
+    if np.any(g < col.lower - 1e-6) or np.any(g > col.upper + 1e-6):
+        return None
+    return rows
+
+
+def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> list[FloatArray] | None:
+    """The arm's variables that raise its tool ``LIFT`` above where ``q`` has it, ``q`` excluded: straight
+    up with the orientation kept (``_straight_up``: the open fingers slide off what they let go of or
+    onto what they grasp), else one IK solution (``TopIK``, approach vertical), else None."""
+    rows = _straight_up(lib, arm, q)
+    if rows is not None:
+        return rows
     pos = lib.tool_T(arm, q)[:3, 3] + np.array([0.0, 0.0, LIFT])
     ok, q_up = ik.solve(arm, pos, q, fixed_base=True)
-    return q_up if ok else None
+    return [q_up] if ok else None
 
 
 def _drive(
@@ -105,8 +149,9 @@ def phases_of(
                 up = _lift(lib, ik, arm, cur[arm])
                 if up is None:
                     return f"cannot lift {arm} after {where}"
-                cur[arm] = up
-                path.append(full())
+                for row in up:
+                    cur[arm] = row
+                    path.append(full())
                 low[arm] = False
             if active is not None and arm != active and not np.array_equal(cur[arm], lib.home_q(arm)):
                 # out of the active arm's way, with what it holds: the graph-NLP kept the arms apart
@@ -141,18 +186,17 @@ def phases_of(
             continue
         obj = a.args[1]
         q_k = values[v]
-        pre = _lift(lib, ik, m, q_k)
-        if pre is None:
+        up = _lift(lib, ik, m, q_k)
+        if up is None:
             return f"no approach {LIFT} m above the keyframe of {a}"
         still = [o for o in lib.objects if o not in holding.values()]
         carrying = holding.get(m)
         grip = None if carrying is None else (carrying, rel_T(values[Var("x", carrying, k)], lib.upright(m)))
         resting = {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in still}
         transits.append(Transit(len(phases), len(path) - 1, m, grip, resting))
-        cur[m] = pre
-        path.append(full())
-        cur[m] = q_k
-        path.append(full())
+        for row in [*up[::-1], q_k]:  # to the approach, then down the lift's rows onto the keyframe
+            cur[m] = row
+            path.append(full())
         keyframes.append(full())
         low[m] = True
         if a.name == "pick":
