@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import weakref
 from collections.abc import Sequence
 
 import casadi as ca
@@ -163,8 +164,21 @@ def points_clear_moving(
         rows.add(box_sdf(R.T @ (pw - t), half), r + margin, ca.inf)
 
 
+_CYLINDERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> ``_urdf_cylinders(model)``
+
+
 def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
-    """link -> [(T_link_cylinder (4, 4), radius, length)] from the URDF's collision cylinders."""
+    """link -> [(T_link_cylinder (4, 4), radius, length)] from the URDF's collision cylinders; read once
+    per model (models are shared and read-only; re-reading the PR2's URDF took
+    ~25 ms, twice per planning call).
+    The result is shared: callers must not modify it."""
+    cyl = _CYLINDERS.get(model)
+    if cyl is None:
+        cyl = _CYLINDERS[model] = _read_cylinders(model)
+    return cyl
+
+
+def _read_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
     import xml.etree.ElementTree as ET
 
     from scipy.spatial.transform import Rotation
