@@ -28,6 +28,7 @@ import pybullet as p
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.nlp.factors import (
+    GRASP_DEPTH,
     RobotSymbols,
     Rows,
     footprint_clear,
@@ -59,7 +60,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 PLACE_LIFT = 0.003  # [m] an object is released this far above its support
-GRASP_DEPTH = 0.025  # [m] the tool point below an object's top (at most half its height)
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
 PAN_CROSS_MAX = 0.1  # [rad] (PR2) shoulder pan towards the other arm's side at most

@@ -18,10 +18,12 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene.geometry import Box
 
 __all__ = [
+    "GRASP_DEPTH",
     "RobotSymbols",
     "Rows",
     "box_clear",
     "footprint_clear",
+    "grasp_point",
     "grasp_top",
     "inside_rectangle",
     "points_apart",
@@ -105,19 +107,28 @@ def footprint_clear(
             rows.add(ca.sqrt(dx * dx + dy * dy + 1e-9), r + margin, ca.inf)
 
 
+GRASP_DEPTH = 0.025  # [m] a top grasp's tool point below the object's top (at most half its height)
+
+
+def grasp_point(T_obj: FloatArray, size: tuple[float, float, float], depth: float = GRASP_DEPTH) -> FloatArray:
+    """A top grasp's tool point (world (3,) [m]): ``depth`` below the top centre of an object at T_obj
+    (4, 4) of full extents ``size``, at most half its height."""
+    return T_obj[:3, 3] + np.array([0.0, 0.0, size[2] / 2 - min(depth, size[2] / 2)])
+
+
 def grasp_top(
     rs: RobotSymbols,
     T_obj: FloatArray,
     size: tuple[float, float, float],
     rows: Rows,
-    depth: float = 0.025,
+    depth: float = GRASP_DEPTH,
     max_tilt: float = 0.6,
 ) -> ca.SX:
     """A grasp from above: the tool point ``depth`` below the object's top centre, the approach axis
     pointing down within ``max_tilt`` [rad] of vertical (a tilted hand reaches further across a
     table), the fingers closing horizontally across two opposite faces (along the object's x or y).
     Returns the tilt measure 1 + a_z (0 when vertical), for the objective to prefer upright hands."""
-    top = T_obj[:3, 3] + np.array([0.0, 0.0, size[2] / 2 - min(depth, size[2] / 2)])
+    top = grasp_point(T_obj, size, depth)
     for i in range(3):
         rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)

@@ -36,6 +36,7 @@ from rlgp_exec.planning.nlp.factors import (
     Rows,
     box_clear,
     footprint_clear,
+    grasp_point,
     grasp_top,
     grasp_top_round,
     inside_rectangle,
@@ -201,14 +202,11 @@ def _rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
     return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2]) / 2, 0.0)))
 
 
-GRASP_DEPTH = 0.025  # [m] a top grasp's tool point below the object's top (``grasp_top``'s default)
-
-
 def pinned_conflict(
     model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None
 ) -> str | None:
     """The reason no keyframe NLP of ``actions`` can be feasible, found without building it: a pick pins
-    the tool point (its grasp row: GRASP_DEPTH below the object's top centre), so the tool sphere's
+    the tool point (its grasp row: ``grasp_point``, GRASP_DEPTH below the object's top centre), so the tool sphere's
     clearance rows against the fixtures (ARM_MARGIN) and the objects standing where the scene put them
     (HAND_MARGIN) are numbers there; one below its bound by more than FEAS_TOL fails every start
     (pick_place_pr2 seed 3: a block 4 cm from another, 16 starts of ~1 s at both tilts, each ending
@@ -223,11 +221,11 @@ def pinned_conflict(
     for a in actions:
         if a.name == "pick" and a.obj in objs:
             o = objs[a.obj]
-            top = o.T[:3, 3] + np.array([0.0, 0.0, o.size[2] / 2 - min(GRASP_DEPTH, o.size[2] / 2)])
+            top = grasp_point(o.T, o.size)
             still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
             for b, margin in [*((b, ARM_MARGIN) for b in fixture_bx), *((b, HAND_MARGIN) for b in still)]:
                 local = np.linalg.solve(b.T, np.r_[top, 1.0])[:3]
-                d = float(ca.evalf(box_sdf(ca.SX(ca.DM(local)), np.asarray(b.size) / 2)))
+                d = float(box_sdf(ca.DM(local), np.asarray(b.size) / 2))
                 if d < r_tool[0] + margin - FEAS_TOL:
                     return (f"{a}: its grasp point is {d * 1e3:.1f} mm from {b.name} (the tool sphere needs "
                             f"{(r_tool[0] + margin) * 1e3:.1f} mm)")
