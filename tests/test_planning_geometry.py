@@ -385,3 +385,45 @@ def test_a_box_at_an_expression_pose_gives_the_rows_of_the_same_box_at_a_number(
         f = ca.Function("f", [T_sym], [ca.vertcat(*b.g)])
         assert np.allclose(np.asarray(ca.evalf(ca.vertcat(*a.g))).ravel(), np.asarray(f(T_box)).ravel(), atol=1e-12)
         assert a.lower == pytest.approx(b.lower) and a.upper == b.upper
+
+
+@pytest.mark.parametrize(
+    ("scene_file", "acts"),
+    [
+        ("pick_place_pr2.toml",
+         [a for b in ("block_a", "block_b") for a in (Action("pick", b), Action("place", b, "tray"))]),
+        ("table_clearing_hsr.toml",
+         [Action("take_knob", "cabinet"), Action("open_drawer", "cabinet"), Action("pick", "block"),
+          Action("drop", "block", "cabinet")]),
+    ],
+)
+def test_a_partial_restart_keeps_only_keyframes_the_failed_rows_do_not_read(scene_file, acts):
+    """Every row of the keyframe NLP reads only its own keyframe and those ``couples`` names (Jacobian
+    sparsity), so a restart that keeps the other keyframes where a failed start left them restarts every
+    variable a failed row depends on; rows failing at every keyframe mean a fresh start."""
+    from rlgp_exec.planning.drawers import drawer_views
+    from rlgp_exec.planning.nlp.keyframes import _build, _kept
+    from rlgp_exec.planning.sequence import SequenceGeometry
+
+    scene = load_scene(SORTING.parent / scene_file)
+    geo = SequenceGeometry(scene, seed=0)
+    try:
+        prob = _build(geo.model, scene, geo.q0, acts, None, geo.ik, geo.hand, geo.self_spheres, geo.body, 0.12,
+                      {o.name: o for o in scene.objects}, drawer_views(scene), geo.mesh_hand)
+    finally:
+        geo.close()
+    J = prob.solver.get_function("nlp_jac_g").sparsity_out(1)
+    rows, cols = J.get_triplet()
+    assert len(prob.row_keyframe) == J.size1()
+    for r, c in zip(rows, cols, strict=True):
+        k = int(prob.row_keyframe[r])
+        assert c // prob.n in (k, *prob.couples[k]), (r, prob.labels[r], k, c // prob.n)
+    assert any(prob.couples[k] for k in range(prob.K))  # a place reads its pick, an open its knob grasp
+    zk = np.arange(prob.K * prob.n, dtype=float).reshape(prob.K, prob.n)
+    own = [k for k in range(prob.K) if prob.targets[k] is not None]
+    for k in range(prob.K):
+        kept = _kept(prob, zk, prob.row_keyframe == k)
+        assert not ({k, *prob.couples[k]} & set(kept))
+        assert set(kept) == set(own) - {k, *prob.couples[k]} or kept == {}
+        assert all(np.array_equal(kept[j], zk[j]) for j in kept)
+    assert _kept(prob, zk, np.ones(len(prob.row_keyframe), bool)) == {}

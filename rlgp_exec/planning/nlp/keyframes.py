@@ -56,6 +56,8 @@ W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
+SEED_LOOKAHEAD = 4  # graph seeds looked at past an attempt's rank for one not tried at that keyframe yet
+SAME_SEED = 0.05  # [m, rad] an initial guess this close (every coordinate) to an earlier one is not tried again
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
@@ -307,6 +309,8 @@ class _Problem:
     lbg: FloatArray
     ubg: FloatArray
     tilt_rows: list[int]
+    row_keyframe: FloatArray  # (rows,) the keyframe whose action each row belongs to
+    couples: tuple[tuple[int, ...], ...]  # per keyframe: the other keyframes its rows also read
 
 
 def _build(
@@ -342,6 +346,7 @@ def _build(
     # object -> (T_world_obj where an earlier keyframe put it (an expression), the target's centre x y and
     # half diagonal [m])
     placed: dict[str, tuple[ca.SX, FloatArray, float]] = {}
+    placed_by: dict[str, tuple[int, ...]] = {}  # object -> the keyframes its placed pose reads (place, pick)
     held: str | None = scene.start.held  # the start's grasp: T_tool_obj is fixed, the kinematic switch
     knob: str | None = None
     grasp: ca.SX | None = None if held is None else ca.DM(scene.start.T_tool_obj)
@@ -351,7 +356,12 @@ def _build(
     targets: list[FloatArray | None] = []  # None: the keyframe follows from the previous one
     labels: list[str] = []  # one per constraint row, for the failure reason
     tilts: list[ca.SX] = []  # 1 + a_z of each grasp: a vertical hand carries objects most safely
+    row_keyframe: list[int] = []
+    couples: list[tuple[int, ...]] = []
+    picked_at: int | None = None  # the keyframe of the grasp held now (None: the start's, or none)
     for k, a in enumerate(actions):
+        row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
+        couples.append(())
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k])
         if a.name in ("open_drawer", "close_drawer"):
             if knob != a.obj:
@@ -359,6 +369,7 @@ def _build(
             new = drawers[a.obj].travel if a.name == "open_drawer" else 0.0
             n0 = len(rows.g)
             follow_prismatic(Z[:, k], Z[:, k - 1], drawers[a.obj].axis_world, new - openings[a.obj], rows)
+            couples[k] = (k - 1,)
             labels += [f"{a} follows the drawer"] * (len(rows.g) - n0)
             openings[a.obj], knob = new, None
             targets.append(None)
@@ -385,6 +396,7 @@ def _build(
             points_clear(rs.T_tool, list(mesh_hand), near, rows, margin=CLEARANCE)
             for m, (T_m, xy_m, r_m) in placed.items():
                 if m != a.obj and np.linalg.norm(xy_m - site) < r_site + r_m + FINGER_REACH:
+                    couples[k] = (*couples[k], *placed_by[m])
                     points_clear_moving(rs.T_tool, [*hand, *mesh_hand], T_m, np.asarray(objs[m].size), rows,
                                         margin=CLEARANCE)
         labels += [f"{a} clearance"] * (len(rows.g) - n0)
@@ -414,7 +426,7 @@ def _build(
                 tilt_rows.append(len(rows.g) + 3)  # grasp_top's approach row: its bound is the tilt, set per solve
                 tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
-            held = a.obj
+            held, picked_at = a.obj, k
             placed.pop(a.obj, None)
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
         elif a.name in ("place", "drop"):
@@ -422,6 +434,8 @@ def _build(
                 raise RlgpError(f"keyframe NLP: {a} without holding {a.obj} (holding {held})")
             o = objs[a.obj]
             T_obj = rs.T_tool @ grasp
+            if picked_at is not None:
+                couples[k] = (*couples[k], picked_at)
             if a.name == "place":
                 T_tgt, half, z_surf = _target_surface(scene, a.target)
                 margin = max(o.size[0], o.size[1]) / 2
@@ -444,11 +458,13 @@ def _build(
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             if a.name == "place":  # a dropped object falls: where it lands is not this expression
                 placed[a.obj] = (T_obj, *_site_disc(scene, a, poses, drawers, openings))
+                placed_by[a.obj] = (k, *couples[k])
             moved.add(a.obj)
-            held, grasp = None, None
+            held, grasp, picked_at = None, None, None
         if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
             rows.add(Z[3, k], -ca.inf, float(ik.hi[3]) - lift_room)
         labels += [f"{a} {KIND[a.name]}"] * (len(rows.g) - n0)
+    row_keyframe += [K - 1] * (len(rows.g) - len(row_keyframe))
     sizes = {m: o.size for m, o in objs.items()}
     z0 = ca.DM(ik.z_of(q_start))
     cost = 0
@@ -477,8 +493,24 @@ def _build(
     f_motion = ca.Function("f_motion", [ca.vec(Z)], [cost])
     return _Problem(
         n, K, solver, f_motion, labels, targets, opening_at, footprints_at, poses, openings0, held_T0, sizes,
-        lbx, ubx, lbg, ubg, tilt_rows,
+        lbx, ubx, lbg, ubg, tilt_rows, np.asarray(row_keyframe, int), tuple(couples),
     )
+
+
+def _kept(prob: _Problem, zk: FloatArray, violated: FloatArray) -> dict[int, FloatArray]:
+    """The keyframes (z (n,) each, from a failed start's solution ``zk`` (K, n)) a partial restart keeps: all
+    but those with a ``violated`` row (bool (rows,)) and the keyframes those rows read (a place's pick, an
+    open/close's knob grasp, the pick and place of an object a finger is kept off); none (a fresh start)
+    when every keyframe with a target of its own would restart. The restarted ones get new initial guesses,
+    and the kept ones hold the rest of the sequence where it was feasible (table_clearing_hsr: 5 fresh
+    starts of ~2 s failed, each on a different one of its 8 keyframes)."""
+    bad = set(prob.row_keyframe[violated].tolist())
+    for k in list(bad):
+        bad.update(prob.couples[k])
+    own = [k for k in range(prob.K) if prob.targets[k] is not None]
+    if all(k in bad for k in own):
+        return {}
+    return {k: zk[k] for k in own if k not in bad}
 
 
 def solve_keyframes(
@@ -566,7 +598,8 @@ def solve_keyframes(
         return r, v, (labels[int(np.argmax(over))] if g.size else "")
 
     best = None
-    keep: dict[int, FloatArray] = {}  # keyframes of a rejected solution that PyBullet accepted
+    keep: dict[int, FloatArray] = {}  # keyframes of a failed start to start from again (the others restart)
+    tried: list[list[FloatArray]] = [[] for _ in range(K)]  # the initial guesses used at each keyframe
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
         if _attempt and deadline is not None and cpu_clock() > deadline:
             log.info("keyframes: deadline reached after %d starts", _attempt)
@@ -584,12 +617,22 @@ def solve_keyframes(
                 init.append(z)
                 continue
             prev_xy = init[-1][:2] if init else z_start[:2]
-            z_near = _graph_seed(ik, x, seeds, footprints_at[k], _attempt // 2, prev_xy) if _attempt % 2 == 0 else None
-            if z_near is None:  # else a reachability-graph node near the target, shifted onto it
-                z_near = ik.guess(x, _free_heading(ik, x, rng, footprints_at[k]))
-            z = _ik_seed(ik, x, z_near, footprints_at[k])
+            z = None
+            if _attempt % 2 == 0:  # a reachability-graph node near the target, shifted onto it: the first one
+                # from this attempt's rank on whose IK seed was not tried at this keyframe already
+                for i in range(_attempt // 2, _attempt // 2 + SEED_LOOKAHEAD):
+                    z_near = _graph_seed(ik, x, seeds, footprints_at[k], i, prev_xy)
+                    if z_near is None:
+                        break
+                    z_try = _ik_seed(ik, x, z_near, footprints_at[k])
+                    if not any(np.max(np.abs(z_try - z_old)) < SAME_SEED for z_old in tried[k]):
+                        z = z_try
+                        break
+            if z is None:  # else a random free base heading
+                z = _ik_seed(ik, x, ik.guess(x, _free_heading(ik, x, rng, footprints_at[k])), footprints_at[k])
             if _attempt % 2 == 1:  # the grasp's roll: a quarter turn of the wrist on every other start
                 z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
+            tried[k].append(z.copy())
             init.append(z)
         z_init = np.concatenate(init)
         res, viol, worst = solve(z_init, 0.0, 1.0, z_init)  # stage 1: feasible near the seeds
@@ -598,8 +641,11 @@ def solve_keyframes(
             if viol2 <= FEAS_TOL:
                 res, viol, worst = res2, viol2, worst2
         restarted, keep = bool(keep), {}  # a partial restart is tried once, then a fresh start
+        zk = np.asarray(ca.reshape(res["x"], n, K)).T
+        if viol > FEAS_TOL and not restarted:  # restart the keyframes whose rows IPOPT could not satisfy
+            g = np.asarray(res["g"]).reshape(-1)
+            keep = _kept(prob, zk, np.maximum(lbg - g, g - ubg) > FEAS_TOL)
         if viol <= FEAS_TOL and in_collision is not None:
-            zk = np.asarray(ca.reshape(res["x"], n, K)).T
             qk = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zk])
             after = object_poses_after(
                 actions, qk, poses, opening_at, drawers, model, ik.tool, sizes, held_T0, openings0
