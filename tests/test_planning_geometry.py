@@ -459,3 +459,42 @@ def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_til
     active = np.flatnonzero((np.abs(v0 - lo) < 1e-9) | (np.abs(v0 - hi) < 1e-9))
     J = np.asarray(ca.Function("J", [u], [ca.jacobian(g(u), u)])([0.0, 0.0]))
     assert np.linalg.matrix_rank(J[active], tol=1e-6) == len(active)
+
+
+
+def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose():
+    """A box ``_near_site`` leaves out (reach: the site disc's radius, ``finger_reach``, HAND_MARGIN, no
+    slack) is clear of every finger sphere by the margin even with the tool on the disc's edge nearest the
+    box and the farthest sphere turned straight at it; a box just inside that reach keeps its rows."""
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.planning.nlp.keyframes import HAND_MARGIN, _near_site, _rect_distance, finger_reach
+    from rlgp_exec.reach.ik import box_sdf
+    from rlgp_exec.scene.geometry import Box
+
+    rng = np.random.default_rng(7)
+    hand = [(rng.uniform(-0.06, 0.06, 3), float(rng.uniform(0.01, 0.03))) for _ in range(6)]
+    c_far, _ = max(hand, key=lambda s: np.linalg.norm(s[0]) + s[1])
+    site, r_site = np.array([0.3, -0.2]), 0.05
+    reach = r_site + finger_reach(hand) + HAND_MARGIN
+    for theta in np.linspace(0.0, 2 * np.pi, 12, endpoint=False):
+        yaw, size = rng.uniform(-np.pi, np.pi), rng.uniform(0.05, 0.4, 3)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+        u = np.array([np.cos(theta), np.sin(theta)])
+        for beyond, kept in ((1e-3, False), (-1e-3, True)):
+            lo, hi = 0.0, 5.0  # the box's centre along u where its footprint is reach + beyond from the site
+            for _ in range(60):
+                T[:2, 3] = site + u * (lo + hi) / 2
+                lo, hi = (lo, (lo + hi) / 2) if _rect_distance(site, T, size) > reach + beyond else ((lo + hi) / 2, hi)
+            box = Box("b", tuple(size), T.copy(), (0.0, 0.0, 0.0, 1.0))
+            assert (box in _near_site([box], site, reach)) == kept
+            if kept:
+                continue
+            near = T[:2, 3] + T[:2, :2] @ np.clip(T[:2, :2].T @ (site - T[:2, 3]), -size[:2] / 2, size[:2] / 2)
+            d = (near - site) / np.linalg.norm(near - site)
+            tool = np.r_[site + r_site * d, T[2, 3]]
+            R = Rotation.align_vectors([np.r_[d, 0.0]], [c_far])[0].as_matrix()
+            for c, r in hand:
+                local = np.linalg.solve(T, np.r_[tool + R @ c, 1.0])[:3]
+                assert float(box_sdf(local, size / 2)) >= r + HAND_MARGIN - 1e-6

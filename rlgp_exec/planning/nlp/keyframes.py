@@ -64,6 +64,7 @@ HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
+REACH_SLACK = 0.05  # [m] boxes this much beyond what the fingers can reach from an action's site keep their rows too
 FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) the fingers may reach sideways
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
@@ -253,6 +254,16 @@ def _site_disc(
     return T[:2, 3], float(np.hypot(*half))
 
 
+def finger_reach(spheres: Sequence[tuple[FloatArray, float]]) -> float:
+    """How far [m] spheres (tool frame centre (3,), radius) reach from the tool point, in any orientation."""
+    return max((float(np.linalg.norm(c)) + r for c, r in spheres), default=0.0)
+
+
+def _near_site(boxes: list[Box], site: FloatArray, reach: float) -> list[Box]:
+    """The boxes whose footprint (yaw-only boxes) comes within ``reach`` [m] of ``site`` (x y (2,), world)."""
+    return [b for b in boxes if _rect_distance(site, b.T, np.asarray(b.size)) < reach]
+
+
 def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatArray]) -> dict[str, FloatArray]:
     """The objects that are obstacles at action a's keyframe (T_world_obj): all but the one being
     grasped, set down or dropped (in or round the open hand), where they stand before the action; for
@@ -335,6 +346,7 @@ def _build(
     Z = ca.SX.sym("z", n, K)
     tilt_rows: list[int] = []
     rows = Rows.empty()
+    hand_reach = finger_reach(hand)
     fixture_rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
     lift_name = model.joint_names[int(ik.idx[3])] if len(ik.idx) > 3 else ""
@@ -386,9 +398,15 @@ def _build(
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
             # the open fingers keep the graph's clearance (and a little) from fixtures and standing objects:
-            # the vertical approach from above then starts from a configuration the graph accepts
-            points_clear(rs.T_tool, list(hand), fixture_bx + still_bx, rows, margin=HAND_MARGIN)
-            points_clear(rs.T_tool, list(hand), finger_bx, rows)  # the drawers: knob grasps come close
+            # the vertical approach from above then starts from a configuration the graph accepts. Only boxes the
+            # fingers can reach from the action's site have rows (the others hold wherever the tool meets its site)
+            site, r_site = _site_disc(scene, a, poses, drawers, openings)
+            if a.name in ("place", "drop"):  # the tool is in the held object, whose centre is on the site
+                r_site += float(np.linalg.norm(objs[a.obj].size)) / 2
+            reach = r_site + hand_reach + HAND_MARGIN + REACH_SLACK
+            near_bx = _near_site(fixture_bx + still_bx, site, reach)
+            points_clear(rs.T_tool, list(hand), near_bx, rows, margin=HAND_MARGIN)
+            points_clear(rs.T_tool, list(hand), _near_site(finger_bx, site, reach), rows)  # knob grasps come close
         # mesh fingers (the PR2's) keep PyBullet's keyframe clearance from the standing objects, and every
         # finger from the objects set down at earlier keyframes (where those keyframes put them)
         if mesh_hand or placed:
