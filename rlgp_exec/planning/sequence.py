@@ -32,7 +32,7 @@ from rlgp_exec.planning.nlp.hand import (
     mesh_finger_spheres,
     other_arm_obstacles,
 )
-from rlgp_exec.planning.nlp.keyframes import ATTEMPTS, DRAWER_ACTIONS, Action, solve_keyframes
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
 from rlgp_exec.planning.validate import Phase, validate_with_fallbacks
@@ -46,9 +46,6 @@ __all__ = ["APPROACH", "SequenceGeometry"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
 DRIVE_ROUND_TIMEOUT = 2.0  # [s] OMPL's time for a base-only path round an obstacle (the last resort)
-# keyframe starts with vertical grasps before hands may lean: the leaning NLP holds every vertical grasp too
-# (sorting_pr2 seed 6: a block 0.56 m from every edge of a table failed 8 vertical starts, ~0.7 s each)
-VERTICAL_STARTS = 4
 RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
 
 log = logging.getLogger(__name__)
@@ -233,16 +230,15 @@ class SequenceGeometry:
         t_start: float | None = None,
         deadline: float | None = None,
     ) -> Plan:
-        """Keyframes, guided paths and replay for one action sequence. Vertical grasps first (VERTICAL_STARTS
-        keyframe starts); hands leaning up to 0.6 rad (which reach further across a table; vertical grasps are
-        among them, and cost less) when the vertical attempt fails.
+        """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
+        leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails.
         ``deadline`` (``budget.cpu_clock()`` [s]): no new keyframe start or tilt after it."""
         t0 = time.perf_counter() if t_start is None else t_start
         reasons = []
-        for tilt, starts in ((0.0, VERTICAL_STARTS), (0.6, ATTEMPTS)):
+        for tilt in (0.0, 0.6):
             if reasons and deadline is not None and cpu_clock() > deadline:
                 break
-            result = self._attempt(actions, planner, nodes_expanded, t0, tilt, deadline, starts)
+            result = self._attempt(actions, planner, nodes_expanded, t0, tilt, deadline)
             if result.success:
                 return result
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
@@ -385,8 +381,7 @@ class SequenceGeometry:
         return path[keep]
 
     def _attempt(
-        self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float, deadline: float | None,
-        starts: int = ATTEMPTS,
+        self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float, deadline: float | None
     ) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
@@ -407,7 +402,6 @@ class SequenceGeometry:
             deadline=deadline,
             cache=self._nlp_cache,
             mesh_hand=self.mesh_hand,
-            attempts=starts,
         )
         empty = np.zeros((0, self.model.nq))
 

@@ -50,7 +50,7 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
 
-__all__ = ["ACTIONS", "ATTEMPTS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
+__all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
 
 log = logging.getLogger(__name__)
 W_BASE = 3.0  # base motion weighs more than arm motion in the objective
@@ -551,9 +551,8 @@ def solve_keyframes(
     deadline: float | None = None,
     cache: dict | None = None,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
-    attempts: int = ATTEMPTS,
 ) -> KeyframeResult:
-    """Solve the keyframe NLP (up to ``attempts`` initial guesses); ``in_collision(q, openings, action, objects)``
+    """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
     model; it gets the drawers' openings [m] at that keyframe, the action, and the objects that are
     obstacles there, T_world_obj where they stand) rejects a solution. ``max_tilt`` [rad]: how far from
@@ -623,7 +622,7 @@ def solve_keyframes(
     best = None
     keep: dict[int, FloatArray] = {}  # keyframes of a failed start to start from again (the others restart)
     tried: list[list[FloatArray]] = [[] for _ in range(K)]  # the initial guesses used at each keyframe
-    for _attempt in range(attempts):  # initial guesses: each keyframe from position IK at its target
+    for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
         if _attempt and deadline is not None and cpu_clock() > deadline:
             log.info("keyframes: deadline reached after %d starts", _attempt)
             break
