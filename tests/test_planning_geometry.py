@@ -498,3 +498,32 @@ def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose(
             for c, r in hand:
                 local = np.linalg.solve(T, np.r_[tool + R @ c, 1.0])[:3]
                 assert float(box_sdf(local, size / 2)) >= r + HAND_MARGIN - 1e-6
+
+
+@pytest.mark.parametrize("side", [0, 1])
+def test_a_pick_seed_closes_the_fingers_across_the_faces_square_to_its_neighbour(side):
+    """With a neighbour off one face of a block, the seed's wrist roll puts the closing axis along the other
+    face axis (to within the 15 degree steps), whatever roll the position IK left; without one, z is kept."""
+    from rlgp_exec.planning.nlp.keyframes import _face_roll
+    from rlgp_exec.reach.ik import ReachIK
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    model = load_robot("pr2")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    ik = ReachIK(model, scene, q0)
+    o = scene.object("block_b")
+    T_obj = o.T.copy()
+    yaw = 0.4
+    T_obj[:3, :3] = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    r = ik.solve(T_obj[:3, 3] + [0.0, 0.0, 0.03], ik.z_of(q0))
+    assert r.ok
+    z = ik.z_of(r.q)
+    neighbour = T_obj[:3, 3] + 0.09 * T_obj[:3, side]
+    assert np.array_equal(_face_roll(model, ik, z, T_obj, [T_obj[:3, 3] + [0.5, 0.0, 0.0]]), z)
+    for turn in (0.0, 0.7, -1.2):
+        z0 = z.copy()
+        z0[-1] += turn
+        zr = _face_roll(model, ik, z0, T_obj, [neighbour])
+        c = model.fk(ik.q_of(zr), ik.tool)[:3, :3] @ np.asarray(model.manipulator().closing)
+        across = T_obj[:2, 1 - side]
+        assert abs(c[:2] @ across) / np.linalg.norm(c[:2]) >= np.cos(np.radians(7.6))
