@@ -400,3 +400,34 @@ def test_a_hand_lifts_off_a_keyframe_straight_up_its_orientation_kept(pr2):
                 angle = np.arccos(np.clip((np.trace(T0[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
                 assert angle < 5e-3, (arm, point, angle)  # [rad]
         assert abs(T[2, 3] - T0[2, 3] - LIFT) < 1e-3
+
+
+def test_a_small_subgraph_starts_once_and_refute_tries_the_start_posture(b4_setup):
+    """The search solves a subgraph of up to ``RESTART_ABOVE`` factors from its guess only (a second
+    start from the arms' start postures took ~45 % of Hanoi's search and changed no verdict there);
+    a conflict is checked by ``refute``, whose first try is that start."""
+    from rlgp_exec.planning.gnpp.solver import Feasibility, SolveResult
+
+    _, lib, _, graph, guess = b4_setup
+    conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
+    assert conflict is not None
+    solver = GraphSolver(lib)
+    assert not solver.solve(conflict.factors, guess).feasible
+    assert len(solver.iters) == 1  # one IPOPT start
+
+    drop = next(f for f in conflict.factors if f.kind != "Kin")
+    part = [f for f in conflict.factors if f is not drop]  # feasible: the conflict is minimal
+    arms = [v for v in variables(part) if v.kind == "q"]
+    assert arms
+
+    class OnlyFromTheStartPosture(GraphSolver):
+        def solve(self, factors, start):
+            if not all(np.allclose(start[v], self.lib.home_q(v.owner)) for v in arms):
+                return SolveResult(Feasibility.INFEASIBLE, dict(start), (1.0,) * len(factors), 0.0)
+            return super().solve(factors, start)
+
+    bad = dict(guess) | {v: lib.home_q(v.owner) + 0.3 for v in arms}
+    stuck = OnlyFromTheStartPosture(lib)
+    assert not stuck.solve(part, bad).feasible
+    assert stuck.refute(part, bad, tries=0) is not None
+

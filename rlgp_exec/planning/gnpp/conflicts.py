@@ -18,13 +18,13 @@ from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
-from rlgp_exec.planning.gnpp.solver import FEAS_TOL, Feasibility, GraphSolver, SolveResult
+from rlgp_exec.planning.gnpp.solver import FEAS_TOL, RESTART_ABOVE, Feasibility, GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
-FILTER_MAX = 60  # conflicts up to this size are made minimal (QuickXplain)
+FILTER_MAX = RESTART_ABOVE  # conflicts up to this size are made minimal (QuickXplain) and refuted
 FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable (object poses only)
 
 
