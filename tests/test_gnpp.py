@@ -431,3 +431,18 @@ def test_a_small_subgraph_starts_once_and_refute_tries_the_start_posture(b4_setu
     assert not stuck.solve(part, bad).feasible
     assert stuck.refute(part, bad, tries=0) is not None
 
+
+def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
+    """``TopIK``: a point a fixed-base arm reached from none of its starts, asked again with another
+    reference posture, is tried from that posture only; a reachable point is solved as before."""
+    lib = FactorLib(pr2, _tower(["b1"], ["(on b1 goal_region)"]))
+    ik, home = TopIK(lib), lib.home_q("right_arm")
+    far = np.array([2.0, -0.2, 1.0])  # beyond the arm
+    assert not ik.solve("right_arm", far, home)[0]
+    n = ik.n_solves
+    assert n > 1
+    ok, q = ik.solve("right_arm", far, home + 0.1)
+    assert not ok and ik.n_solves == n + 1 and np.allclose(q, home + 0.1)
+    near = lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02])
+    assert ik.solve("left_arm", near, lib.home_q("left_arm"))[0]
+
