@@ -446,3 +446,30 @@ def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
     near = lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02])
     assert ik.solve("left_arm", near, lib.home_q("left_arm"))[0]
 
+
+def test_refute_does_not_solve_again_a_conflict_learnt_with_the_object_left_a_step_longer(b4_setup):
+    """``graph.structure`` merges the variables an ``Equal`` factor makes equal and leaves out time: the
+    conflict "b4 out of the right arm's reach" and the same with b4 left standing a step longer are
+    one problem; ``refute`` checks it once. A different problem (the other arm) is checked."""
+    from rlgp_exec.planning.gnpp.graph import structure
+    from rlgp_exec.planning.gnpp.pntc import Factor, Var
+
+    _, lib, _, _, _ = b4_setup
+
+    def reach(arm: str, wait: int) -> tuple[list, dict]:
+        x = [Var("x", "b4", t) for t in range(wait + 2)]
+        q = Var("q", arm, wait + 1)
+        fs = [Factor(("Ref", "b4"), (x[0],), ())]
+        fs += [Factor(("Equal", "4"), (x[t], x[t + 1]), ()) for t in range(wait)]
+        fs += [Factor(("Kin", "b4", arm), (q, x[wait], x[wait + 1]), ()), Factor(("Grasp", "b4"), (x[wait + 1],), ())]
+        guess = {v: lib.start_pose("b4") for v in x} | {x[-1]: lib.held_pose("b4"), q: lib.home_q(arm)}
+        return fs, guess
+
+    now, later, other = reach("right_arm", 0), reach("right_arm", 2), reach("left_arm", 1)
+    assert structure(now[0]) == structure(later[0]) != structure(other[0])
+    solver = GraphSolver(lib)
+    assert solver.refute(*now) is None
+    n = solver.n_solves
+    assert solver.refute(*later) is None and solver.n_solves == n
+    solver.refute(*other)
+    assert solver.n_solves > n
