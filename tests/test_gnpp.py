@@ -473,3 +473,37 @@ def test_refute_does_not_solve_again_a_conflict_learnt_with_the_object_left_a_st
     assert solver.refute(*later) is None and solver.n_solves == n
     solver.refute(*other)
     assert solver.n_solves > n
+
+
+def test_a_feasible_plan_is_solved_whole_at_the_tightest_relaxations(pr2):
+    """At "No Time" and the full graph (arms with their collisions: large NLPs, rarely infeasible once
+    the looser relaxations are feasible) a component is tried whole first; only if that fails does the
+    time search solve it window by window. A feasible plan: one solve per such component."""
+    from rlgp_exec.planning.gnpp.conflicts import WHOLE_FIRST
+    from rlgp_exec.planning.gnpp.graph import times_of
+
+    scene = _tower(["b1", "b2"], ["(on b1 goal_region)"])
+    lib = FactorLib(pr2, scene)
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    plan = [GroundAction.parse(a) for a in ("(pick left_arm b1 table)", "(place left_arm b1 goal_region)")]
+    states = task.simulate(plan)
+    graph = factors_of(states, lib.arms, ["b1", "b2"])
+    solved: list[list] = []
+
+    class Recording(GraphSolver):
+        def solve(self, factors, start):
+            solved.append(list(factors))
+            return super().solve(factors, start)
+
+    def tight(fs) -> bool:  # arms and collisions between two variables: only the last relaxations have both
+        return any(f.robot for f in fs) and any(f.coupling for f in fs)
+
+    check = Checker(Recording(lib), initial_guess(lib, TopIK(lib), states, variables(graph)))
+    conflict, values = find_conflict(check, graph, ExtractOptions())
+    assert conflict is None and values
+    comps: list[list] = []  # a component the same at both is solved once (``Checker`` remembers it)
+    for c in (c for rel in WHOLE_FIRST for c in components(relax(graph, rel)) if tight(c)):
+        if all(set(c) != set(d) for d in comps):
+            comps.append(c)
+    assert any(times_of(c)[1] > times_of(c)[0] for c in comps)  # window by window: several solves
+    assert [len(fs) for fs in solved if tight(fs)] == [len(c) for c in comps]
