@@ -400,3 +400,110 @@ def test_a_hand_lifts_off_a_keyframe_straight_up_its_orientation_kept(pr2):
                 angle = np.arccos(np.clip((np.trace(T0[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
                 assert angle < 5e-3, (arm, point, angle)  # [rad]
         assert abs(T[2, 3] - T0[2, 3] - LIFT) < 1e-3
+
+
+def test_a_small_subgraph_starts_once_and_refute_tries_the_start_posture(b4_setup):
+    """The search solves a subgraph of up to ``RESTART_ABOVE`` factors from its guess only (a second
+    start from the arms' start postures took ~45 % of Hanoi's search and changed no verdict there);
+    a conflict is checked by ``refute``, whose first try is that start."""
+    from rlgp_exec.planning.gnpp.solver import Feasibility, SolveResult
+
+    _, lib, _, graph, guess = b4_setup
+    conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
+    assert conflict is not None
+    solver = GraphSolver(lib)
+    assert not solver.solve(conflict.factors, guess).feasible
+    assert len(solver.iters) == 1  # one IPOPT start
+
+    drop = next(f for f in conflict.factors if f.kind != "Kin")
+    part = [f for f in conflict.factors if f is not drop]  # feasible: the conflict is minimal
+    arms = [v for v in variables(part) if v.kind == "q"]
+    assert arms
+
+    class OnlyFromTheStartPosture(GraphSolver):
+        def solve(self, factors, start):
+            if not all(np.allclose(start[v], self.lib.home_q(v.owner)) for v in arms):
+                return SolveResult(Feasibility.INFEASIBLE, dict(start), (1.0,) * len(factors), 0.0)
+            return super().solve(factors, start)
+
+    bad = dict(guess) | {v: lib.home_q(v.owner) + 0.3 for v in arms}
+    stuck = OnlyFromTheStartPosture(lib)
+    assert not stuck.solve(part, bad).feasible
+    assert stuck.refute(part, bad, tries=0) is not None
+
+
+def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
+    """``TopIK``: a point a fixed-base arm reached from none of its starts, asked again with another
+    reference posture, is tried from that posture only; a reachable point is solved as before."""
+    lib = FactorLib(pr2, _tower(["b1"], ["(on b1 goal_region)"]))
+    ik, home = TopIK(lib), lib.home_q("right_arm")
+    far = np.array([2.0, -0.2, 1.0])  # beyond the arm
+    assert not ik.solve("right_arm", far, home)[0]
+    n = ik.n_solves
+    assert n > 1
+    ok, q = ik.solve("right_arm", far, home + 0.1)
+    assert not ok and ik.n_solves == n + 1 and np.allclose(q, home + 0.1)
+    near = lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02])
+    assert ik.solve("left_arm", near, lib.home_q("left_arm"))[0]
+
+
+def test_refute_does_not_solve_again_a_conflict_learnt_with_the_object_left_a_step_longer(b4_setup):
+    """``graph.structure`` merges the variables an ``Equal`` factor makes equal and leaves out time: the
+    conflict "b4 out of the right arm's reach" and the same with b4 left standing a step longer are
+    one problem; ``refute`` checks it once. A different problem (the other arm) is checked."""
+    from rlgp_exec.planning.gnpp.graph import structure
+    from rlgp_exec.planning.gnpp.pntc import Factor, Var
+
+    _, lib, _, _, _ = b4_setup
+
+    def reach(arm: str, wait: int) -> tuple[list, dict]:
+        x = [Var("x", "b4", t) for t in range(wait + 2)]
+        q = Var("q", arm, wait + 1)
+        fs = [Factor(("Ref", "b4"), (x[0],), ())]
+        fs += [Factor(("Equal", "4"), (x[t], x[t + 1]), ()) for t in range(wait)]
+        fs += [Factor(("Kin", "b4", arm), (q, x[wait], x[wait + 1]), ()), Factor(("Grasp", "b4"), (x[wait + 1],), ())]
+        guess = {v: lib.start_pose("b4") for v in x} | {x[-1]: lib.held_pose("b4"), q: lib.home_q(arm)}
+        return fs, guess
+
+    now, later, other = reach("right_arm", 0), reach("right_arm", 2), reach("left_arm", 1)
+    assert structure(now[0]) == structure(later[0]) != structure(other[0])
+    solver = GraphSolver(lib)
+    assert solver.refute(*now) is None
+    n = solver.n_solves
+    assert solver.refute(*later) is None and solver.n_solves == n
+    solver.refute(*other)
+    assert solver.n_solves > n
+
+
+def test_a_feasible_plan_is_solved_whole_at_the_tightest_relaxations(pr2):
+    """At "No Time" and the full graph (arms with their collisions: large NLPs, rarely infeasible once
+    the looser relaxations are feasible) a component is tried whole first; only if that fails does the
+    time search solve it window by window. A feasible plan: one solve per such component."""
+    from rlgp_exec.planning.gnpp.conflicts import WHOLE_FIRST
+    from rlgp_exec.planning.gnpp.graph import times_of
+
+    scene = _tower(["b1", "b2"], ["(on b1 goal_region)"])
+    lib = FactorLib(pr2, scene)
+    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
+    plan = [GroundAction.parse(a) for a in ("(pick left_arm b1 table)", "(place left_arm b1 goal_region)")]
+    states = task.simulate(plan)
+    graph = factors_of(states, lib.arms, ["b1", "b2"])
+    solved: list[list] = []
+
+    class Recording(GraphSolver):
+        def solve(self, factors, start):
+            solved.append(list(factors))
+            return super().solve(factors, start)
+
+    def tight(fs) -> bool:  # arms and collisions between two variables: only the last relaxations have both
+        return any(f.robot for f in fs) and any(f.coupling for f in fs)
+
+    check = Checker(Recording(lib), initial_guess(lib, TopIK(lib), states, variables(graph)))
+    conflict, values = find_conflict(check, graph, ExtractOptions())
+    assert conflict is None and values
+    comps: list[list] = []  # a component the same at both is solved once (``Checker`` remembers it)
+    for c in (c for rel in WHOLE_FIRST for c in components(relax(graph, rel)) if tight(c)):
+        if all(set(c) != set(d) for d in comps):
+            comps.append(c)
+    assert any(times_of(c)[1] > times_of(c)[0] for c in comps)  # window by window: several solves
+    assert [len(fs) for fs in solved if tight(fs)] == [len(c) for c in comps]

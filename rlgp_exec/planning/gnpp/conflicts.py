@@ -1,10 +1,11 @@
 """Finding a small infeasible subgraph (GNPP paper, Sec. VI and Alg. 1 of the appendix).
 
 For each relaxation in order (loose to tight) the relaxed graph is split into connected components;
-each component is solved; the first infeasible one is cut down by the double binary search on the
-time index, then (``convergence``) to the factors violated at the optimizer's convergence point if
-those alone are infeasible, and finally by QuickXplain (divide and conquer over the factors) so
-that the conflict is minimal (Def. 4.4): infeasible, and feasible without any one of its factors.
+each component is solved (at the tightest relaxations tried whole first, ``WHOLE_FIRST``); the first
+infeasible one is cut down by the double binary search on the time index, then (``convergence``) to
+the factors violated at the optimizer's convergence point if those alone are infeasible, and finally
+by QuickXplain (divide and conquer over the factors) so that the conflict is minimal (Def. 4.4):
+infeasible, and feasible without any one of its factors.
 Every solve goes through ``Checker`` (counts, optional database).
 """
 
@@ -18,13 +19,18 @@ from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
-from rlgp_exec.planning.gnpp.solver import FEAS_TOL, Feasibility, GraphSolver, SolveResult
+from rlgp_exec.planning.gnpp.solver import FEAS_TOL, RESTART_ABOVE, Feasibility, GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
-FILTER_MAX = 60  # conflicts up to this size are made minimal (QuickXplain)
+FILTER_MAX = RESTART_ABOVE  # conflicts up to this size are made minimal (QuickXplain) and refuted
+#: relaxations whose components are tried whole before the time search: the tightest ones (arms and
+#: their collisions), where the NLPs are large, feasible nearly always once the looser relaxations
+#: are (tower, obstacles, Hanoi, seeds 0-2: 7 "infeasible" of their 187 windows), and window by window cost
+#: 3-5 solves of growing size (a feasible plan's No Time and full graph took 40-60 % of tower's CPU)
+WHOLE_FIRST = (Relaxation.NO_TIME, Relaxation.NONE)
 FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable (object poses only)
 
 
@@ -66,7 +72,10 @@ class Checker:
         self.last: SolveResult | None = None
         self._seen: dict[frozenset[Factor], tuple[tuple[Factor, ...], SolveResult]] = {}
 
-    def feasible(self, factors: Sequence[Factor]) -> bool:
+    def feasible(self, factors: Sequence[Factor], tentative: bool = False) -> bool:
+        """``tentative``: one start (no second start from the arms' start postures), and only a
+        "feasible" answer counts: an "infeasible" one is neither remembered nor put in the database
+        (the caller asks smaller questions next, and may ask this one again from a better guess)."""
         self.last = None
         if not factors:
             return True
@@ -84,8 +93,15 @@ class Checker:
             known = self.db.lookup(factors)
             if known is not None:
                 return known
-        res = self.solver.solve(factors, self.guess)
+        restarts = self.solver.restarts
+        self.solver.restarts = 0 if tentative else restarts
+        try:
+            res = self.solver.solve(factors, self.guess)
+        finally:
+            self.solver.restarts = restarts
         self.last = res
+        if tentative and not res.feasible:
+            return False
         self._seen[frozenset(factors)] = (tuple(factors), res)
         if self.db is not None:
             self.db.add(factors, res.feasible)
@@ -109,7 +125,7 @@ def _keep(check: Checker) -> None:
         check.guess.update(check.last.values)
 
 
-def _time_search(check: Checker, g: list[Factor], coarse: bool = False) -> list[Factor] | None:
+def _time_search(check: Checker, g: list[Factor], coarse: bool = False, whole: bool = False) -> list[Factor] | None:
     """The minimal time window [f, l] of a component, or None if the component is feasible (then
     ``check.last`` is the solve of all of it). Double search on the time index (Sec. VI-A), galloping:
     the smallest l with G[t0 .. l] infeasible is bracketed by windows of 1, 2, 4, ... steps from t0,
@@ -117,8 +133,11 @@ def _time_search(check: Checker, g: list[Factor], coarse: bool = False) -> list[
     Small feasible windows are cheap and warm-start the next ones; an infeasible verdict is the
     expensive kind (the solver runs to its limits), and this way the infeasible windows solved are
     the smallest ones, not the whole component first (the paper's "numerous small and feasible
-    problems first")."""
+    problems first"). ``whole``: the component is tried whole first, tentatively (one start; an
+    "infeasible" answer is no verdict and is asked again window by window)."""
     t0, t1 = times_of(g)
+    if whole and check.feasible(g, tentative=True):
+        return None
     lo, hi, n = t0, None, 1  # G[t0 .. lo-1] is feasible; G[t0 .. hi] is infeasible
     while hi is None:
         last = min(t0 + n - 1, t1)
@@ -219,7 +238,10 @@ def find_conflict(
             # each infeasible verdict the slowest kind; with the convergence heuristic, a window it
             # cannot cut below FILTER_MAX is not bisected further (the planner then blocks the plan)
             coarse = rel is Relaxation.NONE and opts.convergence
-            window = _time_search(check, comp, coarse) if opts.time_search else None if check.feasible(comp) else comp
+            if opts.time_search:
+                window = _time_search(check, comp, coarse, whole=rel in WHOLE_FIRST)
+            else:
+                window = None if check.feasible(comp) else comp
             if window is None:
                 if check.last is not None:  # a looser relaxation's solution warm-starts the tighter ones
                     check.guess.update(check.last.values)

@@ -22,6 +22,7 @@ __all__ = [
     "describe",
     "relax",
     "semantic_graph",
+    "structure",
     "time_slice",
     "times_of",
     "to_forbidden",
@@ -108,6 +109,35 @@ def semantic_graph(factors: Iterable[Factor], context: Mapping[tuple[str, ...], 
             g.add_node(v, label=v.label)
             g.add_edge(("f", i), v, slot=slot)
     return g
+
+
+def structure(factors: Iterable[Factor]) -> tuple:
+    """The subgraph's NLP up to the names of its variables: the variables' labels in order and each
+    factor's key with its variables' positions, time indices left out and the variables an ``Equal``
+    factor makes equal merged into one (an exact equality of the whole pose: an object held, or left
+    standing, a few steps longer gives the same problem). Subgraphs of one scene with the same
+    structure are the same NLP up to renaming (a factor's function and a variable's bounds depend on
+    its key and label only: Pi is time-invariant), so they are both feasible or both infeasible."""
+    fs = list(factors)
+    rep: dict[Var, Var] = {}
+
+    def find(v: Var) -> Var:
+        while v in rep:
+            v = rep[v]
+        return v
+
+    for f in fs:
+        if f.kind == "Equal":
+            a, b = sorted(find(v) for v in f.vars)
+            if a != b:
+                rep[b] = a
+    rest = [f for f in fs if f.kind != "Equal"]
+    order = sorted({find(v) for f in rest for v in f.vars})
+    pos = {v: i for i, v in enumerate(order)}
+    return (
+        tuple(v.label for v in order),
+        tuple(sorted((f.key, tuple(pos[find(v)] for v in f.vars)) for f in rest)),
+    )
 
 
 def to_forbidden(factors: Iterable[Factor]) -> ForbiddenSequence:
