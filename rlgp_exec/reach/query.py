@@ -291,11 +291,28 @@ class ReachabilityPlanner:
             return self.g.G
         return nx.subgraph_view(self.g.G, filter_edge=lambda u, v: self._weight(u, v, {"weight": 0.0}) is not None)
 
+    def _closest_pairs(self, A: np.ndarray, B: np.ndarray, pairs: int) -> list[tuple[int, int]]:
+        """Up to ``pairs`` node pairs (u in A, v in B), u's nearest v in joint space (``q_distance``),
+        nearest pairs first, no u twice."""
+        idx = self.g.plan_idx
+        QA, QB = self.g.Q[A][:, idx], self.g.Q[B][:, idx]
+        cont = self.g.limits.continuous[idx]
+        best = np.full(A.size, np.inf)
+        arg = np.zeros(A.size, dtype=int)
+        for s in range(0, B.size, 256):  # blocks of B: (|A|, 256, n) differences at most
+            d = QB[None, s:s + 256] - QA[:, None]
+            d[..., cont] = (d[..., cont] + np.pi) % (2 * np.pi) - np.pi
+            n = np.linalg.norm(d, axis=2)
+            k = n.argmin(axis=1)
+            better = n[np.arange(A.size), k] < best
+            best[better], arg[better] = n[np.arange(A.size), k][better], s + k[better]
+        return [(int(A[k]), int(B[arg[k]])) for k in np.argsort(best, kind="stable")[:pairs]]
+
     def _bridge(self, a: int, b: int, pairs: int = 6) -> bool:
         """Join the components of a and b (as this query sees the graph: a component cut off only by
         edges hidden while carrying is a component of its own): samples round the midpoints of their
-        closest node pairs (task space), first in joint space for every pair, then by IK
-        (``_candidates``), become nodes with checked edges to both sides."""
+        closest node pairs (in joint space, then in task space), first drawn in joint space for every
+        pair, then by IK (``_candidates``), become nodes with checked edges to both sides."""
         from scipy.spatial import cKDTree
 
         self.counters["enhancements"] += 1
@@ -303,7 +320,8 @@ class ReachabilityPlanner:
         A = np.fromiter(nx.node_connected_component(view, a), dtype=int)
         B = np.fromiter(nx.node_connected_component(view, b), dtype=int)
         d, j = cKDTree(self.g.X[B]).query(self.g.X[A])
-        closest = [(int(A[k]), int(B[j[k]])) for k in np.argsort(d)[:pairs]]
+        in_task = [(int(A[k]), int(B[j[k]])) for k in np.argsort(d, kind="stable")[:pairs]]
+        closest = list(dict.fromkeys(self._closest_pairs(A, B, pairs) + in_task))
         for stage in ("q", "ik"):
             for u, v in closest:
                 mid = 0.5 * (self.g.X[u] + self.g.X[v])
