@@ -171,9 +171,8 @@ class WorldChecker:
         at LOOKAHEAD); ``part`` restricts the pairs measured (module docstring)."""
         return self._distance(q, self._pairs(part))
 
-    def _link_distances(self, q: FloatArray, pairs: list[tuple[int, int]]) -> tuple[FloatArray, float]:
-        """(per robot link (PyBullet index + 1), the held object) smallest distances [m] to the pairs'
-        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link)."""
+    def _place(self, q: FloatArray, pairs: list[tuple[int, int]]) -> None:
+        """The robot at q, and the held object in its hand if ``pairs`` measure it."""
         self.robot.set_q(q, only_changed=True)
         if self.attached is not None and any(a == self.attached[0] for a, _ in pairs):
             body, T_to, _ = self.attached
@@ -181,6 +180,11 @@ class WorldChecker:
             p.resetBasePositionAndOrientation(
                 body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
             )
+
+    def _link_distances(self, q: FloatArray, pairs: list[tuple[int, int]]) -> tuple[FloatArray, float]:
+        """(per robot link (PyBullet index + 1), the held object) smallest distances [m] to the pairs'
+        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link)."""
+        self._place(q, pairs)
         links = np.full(self._moved_by.shape[0], LOOKAHEAD)
         held = LOOKAHEAD
         robot = self.robot.id
@@ -193,13 +197,7 @@ class WorldChecker:
         return links, held
 
     def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
-        self.robot.set_q(q, only_changed=True)
-        if self.attached is not None and any(a == self.attached[0] for a, _ in pairs):
-            body, T_to, _ = self.attached
-            T = self.model.fk(q, self.tool) @ T_to
-            p.resetBasePositionAndOrientation(
-                body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
-            )
+        self._place(q, pairs)
         d = LOOKAHEAD
         robot = self.robot.id
         for a, b in pairs:
