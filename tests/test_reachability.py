@@ -114,6 +114,28 @@ def test_an_edge_is_free_exactly_when_its_fixed_and_changed_parts_are(wall):
         checker.set_objects([])
 
 
+def test_a_link_the_edge_does_not_move_does_not_slow_its_sweep(wall):
+    """Conservative advancement per link: with the base 11 mm from the wall (the closest link, facing
+    away), turning a wrist joint moves no base point, so the sweep takes a few large steps instead of
+    ~40 steps of the base's margin; turning the base in place moves its body by its own radius, not the
+    arm's reach. The verdicts stay exact: free, and no sample of a dense sweep comes within the
+    clearance."""
+    import math
+
+    scene, model, _, _, checker, _ = wall
+    q = nominal_q(model, scene).copy()
+    q[:3] = (-0.05 - 0.215 - 0.011, 0.5, math.pi)  # wall face at x = -0.05, base radius 0.215 m
+    assert checker.distance(q) < 0.02 and not checker(q)
+    for joint, delta, most in (("arm_roll_joint", 0.3, 10), ("wrist_flex_joint", 0.3, 10), ("base_yaw", 0.5, 40)):
+        q2 = q.copy()
+        q2[model.index(joint)] += delta
+        calls = checker.calls
+        assert not checker.edge_collides(q, q2)
+        assert checker.calls - calls <= most, joint
+        dq = model.limits.difference(q2, q)
+        assert all(checker.distance(q + s * dq) >= checker.clearance for s in np.linspace(0.0, 1.0, 200))
+
+
 def test_the_library_answers_both_directions(wall):
     _, _, graph, _, _, planner = wall
     a, b = graph.alive[5], graph.alive[40]

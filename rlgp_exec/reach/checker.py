@@ -59,6 +59,21 @@ def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
     return r
 
 
+def vertical_lifts(body: int, client: int, joint_names: tuple[str, ...] | list[str]) -> list[int]:
+    """Indices into q of the prismatic ``*lift_joint`` joints moving along their parent's z axis."""
+    index = {n: i for i, n in enumerate(joint_names)}
+    out = []
+    for i in range(p.getNumJoints(body, physicsClientId=client)):
+        info = p.getJointInfo(body, i, physicsClientId=client)
+        name, kind, axis, parent_rot = info[1].decode(), info[2], info[13], info[15]
+        flat = np.allclose(np.abs(np.asarray(parent_rot, float)), [0.0, 0.0, 0.0, 1.0], atol=1e-9)
+        if name in index and name.endswith("lift_joint") and kind == p.JOINT_PRISMATIC and flat and (
+            np.allclose(np.abs(axis), [0.0, 0.0, 1.0], atol=1e-9)
+        ):
+            out.append(index[name])
+    return out
+
+
 def link_ancestors(body: int, client: int, joint_names: tuple[str, ...] | list[str]) -> np.ndarray:
     """(n_links + 1, nq) bool: row l + 1 marks the joints of q that move PyBullet link l (row 0: the
     root). A link below a moving joint outside q (a mimic joint) is marked as moved by every joint."""
@@ -102,6 +117,12 @@ class WorldChecker:
         self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
         self._moved_by = link_ancestors(self.robot.id, self.client, self.model.joint_names)
         self._tool_row = self.robot.link_index[self.tool] + 1
+        # the body: links that only the base and vertical lifts move (their distance from the base's
+        # axis is fixed, so the yaw moves them by that distance per radian, not by the arm's reach)
+        self._others = np.ones(self.model.nq, dtype=bool)  # the joints other than the base and the lifts
+        self._others[[0, 1, 2, *vertical_lifts(self.robot.id, self.client, self.model.joint_names)]] = False
+        self._shaped = np.array([i for i in range(p.getNumJoints(self.robot.id, physicsClientId=self.client))
+                                 if p.getCollisionShapeData(self.robot.id, i, physicsClientId=self.client)], dtype=int)
 
     @property
     def world_changed(self) -> bool:
@@ -233,7 +254,7 @@ class WorldChecker:
         if not pairs:
             return False
         dq = self.model.limits.difference(q2, q1)
-        links_bound, held_bound = self._bounds(dq, part)
+        links_bound, held_bound = self._bounds(dq, part, q1)
         arm_len = float(np.abs(dq[self.arm]).max()) if self.arm.size else 0.0
         n_self = max(1, math.ceil(arm_len / SELF_STEP)) if part != "changed" else 0
         # the middle first: closer than the clearance there, the sweep below would stop there too (it
@@ -262,15 +283,34 @@ class WorldChecker:
                 step = min(step, (held - self.clearance) / held_bound)
             s = min(1.0, s + max(step, 1e-6))
 
-    def _bounds(self, dq: FloatArray, part: Part) -> tuple[FloatArray, float]:
+    def _body_yaw_radii(self, q: FloatArray, dq: FloatArray) -> FloatArray:
+        """(rows as ``_link_distances``) for an edge from q by dq: each body link's (one that only the
+        base and vertical lifts move, rigid relative to the base's vertical axis) farthest distance
+        [m] from that axis (its bounding box's corners at q); the robot's reach for the other links."""
+        radii = np.full(self._moved_by.shape[0], self.radii[2])
+        moving = self._others & (dq != 0.0)
+        body = self._shaped[~self._moved_by[self._shaped + 1][:, moving].any(axis=1)]
+        self.robot.set_q(q, only_changed=True)
+        for link in body:
+            lo, hi = p.getAABB(self.robot.id, int(link), physicsClientId=self.client)
+            dx = max(abs(lo[0] - q[0]), abs(hi[0] - q[0]))
+            dy = max(abs(lo[1] - q[1]), abs(hi[1] - q[1]))
+            radii[link + 1] = min(radii[link + 1], math.hypot(dx, dy))
+        return radii
+
+    def _bounds(self, dq: FloatArray, part: Part, q1: FloatArray | None = None) -> tuple[FloatArray, float]:
         """How far [m] any point of each robot link (rows as ``_link_distances``) and of the held object
         can move over an edge of joint motion dq: the base's translation |(dx, dy)| plus, for each
-        other joint that moves the link, |dq_j| times that joint's radius; the held object's as the
-        tool link's with its reach added to each radius (0 when the held object is not checked)."""
+        other joint that moves the link, |dq_j| times that joint's radius (the yaw's, for a body link,
+        its distance from the base's axis at q1 when given); the held object's as the tool link's
+        with its reach added to each radius (0 when the held object is not checked)."""
         w = np.abs(dq) * self.radii
-        w[:2] = 0.0
+        w[:3] = 0.0
         trans = float(np.hypot(dq[0], dq[1]))
         links = self._moved_by @ w + trans * self._moved_by[:, :2].any(axis=1)
+        if dq[2] != 0.0:  # the yaw: the body links by their own distance from the axis (from q1)
+            yaw = self._body_yaw_radii(q1, dq) if q1 is not None else np.full(links.shape, self.radii[2])
+            links = links + abs(float(dq[2])) * yaw * self._moved_by[:, 2]
         held = 0.0
         if self.attached is not None and part != "fixed":
             moves = self._moved_by[self._tool_row].copy()
