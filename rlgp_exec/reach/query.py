@@ -34,7 +34,10 @@ __all__ = ["QueryStatus", "RGPath", "ReachabilityPlanner", "interpolate"]
 log = logging.getLogger(__name__)
 ENHANCE_SIGMAS = (0.25, 0.15, 0.08, 0.04)  # [m] the shrinking Gaussian's standard deviations
 ENHANCE_TRIES = 6  # samples per sigma
-MAX_REPLANS = 60
+MAX_REPLANS = 60  # replans after a path's edges were swept
+# replans in all, those after a probe only included (~5 ms each: a shortest path and a few distance
+# queries); round a table the task-space neighbours across it are cut one or two per replan
+MAX_PROBED = 400
 MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback (each costs up to ~50 IK solves)
 # configurations drawn per sigma round a bridge's or an enhancement's centre in joint space, before the
 # task-space samples (IK): ~1 ms each (kinematics and a collision check) against ~20 ms per IK solve
@@ -406,8 +409,10 @@ class ReachabilityPlanner:
                 (time.perf_counter() - t0) * 1e3,
                 f"no collision-free configuration reaches {x2.round(3)}",
             )
-        bridges = 0
-        for _ in range(MAX_REPLANS):
+        bridges, swept = 0, 0
+        for _ in range(MAX_PROBED):
+            if swept >= MAX_REPLANS:
+                break
             try:
                 nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
             except nx.NetworkXNoPath:
@@ -417,6 +422,7 @@ class ReachabilityPlanner:
                 continue
             bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self._probe(u, v)]
             if not bad:  # no edge's middle collides: check them all (a free edge costs a whole sweep)
+                swept += 1
                 bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]
             if not bad:
                 path = self.g.Q[nodes]
