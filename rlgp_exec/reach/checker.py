@@ -42,6 +42,7 @@ SELF_TOLERANCE = 1e-3  # [m] penetration allowed between robot links (touching n
 SELF_STEP = 0.02  # [rad or m] of arm motion between self-collision samples along an edge
 LOOKAHEAD = 0.5  # [m] distances are measured up to this far
 MIN_ADVANCE = 1e-3  # [m] smallest advance: closer than CLEARANCE + this counts as a collision
+FAR = 0.2  # [m] an obstacle measured 2 FAR away is not measured again along an edge while it stays FAR away
 
 
 def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
@@ -202,19 +203,37 @@ class WorldChecker:
                 body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
             )
 
-    def _link_distances(self, q: FloatArray, pairs: list[tuple[int, int]]) -> tuple[FloatArray, float]:
+    def _link_distances(
+        self, q: FloatArray, pairs: list[tuple[int, int]], far: dict[int, tuple[float, float]], moved: float
+    ) -> tuple[FloatArray, float]:
         """(per robot link (PyBullet index + 1), the held object) smallest distances [m] to the pairs'
-        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link)."""
+        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link), or lower bounds of them.
+        ``far`` (pair index -> (its distance when measured, ``moved`` then)) holds the pairs measured at
+        least 2 FAR apart; ``moved`` [m] bounds how far any point has moved since the sweep began. A
+        pair whose distance less what has moved since is still FAR or more is not measured: that
+        lower bound stands for it (for every link)."""
         self._place(q, pairs)
         links = np.full(self._moved_by.shape[0], LOOKAHEAD)
         held = LOOKAHEAD
         robot = self.robot.id
-        for a, b in pairs:
+        for k, (a, b) in enumerate(pairs):
+            if k in far:
+                bound = far[k][0] - (moved - far[k][1])
+                if bound >= FAR:
+                    links, held = (links, min(held, bound)) if a != robot else (np.minimum(links, bound), held)
+                    continue
+                del far[k]
+            d = LOOKAHEAD
             for c in p.getClosestPoints(a, b, LOOKAHEAD, physicsClientId=self.client):
                 if a != robot:
                     held = min(held, float(c[8]))
                 elif not (b == self.knob and c[3] in self._fingers and c[4] == 0):  # (fingers round the knob)
                     links[c[3] + 1] = min(links[c[3] + 1], float(c[8]))
+                else:
+                    continue
+                d = min(d, float(c[8]))
+            if d >= 2 * FAR:
+                far[k] = (d, moved)
         return links, held
 
     def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
@@ -263,10 +282,12 @@ class WorldChecker:
         if self._distance(q1 + 0.5 * dq, pairs) < self.clearance:
             return True
         s, last_self = 0.0, -1.0
+        fastest = max(float(links_bound.max()), held_bound)  # [m] of motion of any point over the edge
+        far: dict[int, tuple[float, float]] = {}
         while True:
             q = q1 + s * dq
             self.calls += 1
-            links, held = self._link_distances(q, pairs)
+            links, held = self._link_distances(q, pairs, far, s * fastest)
             if min(float(links.min()), held) < self.clearance + MIN_ADVANCE * (s < 1.0):
                 return True
             if n_self and (s - last_self >= 1.0 / n_self or s >= 1.0):
