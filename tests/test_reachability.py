@@ -114,6 +114,28 @@ def test_an_edge_is_free_exactly_when_its_fixed_and_changed_parts_are(wall):
         checker.set_objects([])
 
 
+def test_a_link_the_edge_does_not_move_does_not_slow_its_sweep(wall):
+    """Conservative advancement per link: with the base 11 mm from the wall (the closest link, facing
+    away), turning a wrist joint moves no base point, so the sweep takes a few large steps instead of
+    ~40 steps of the base's margin; turning the base in place moves its body by its own radius, not the
+    arm's reach. The verdicts stay exact: free, and no sample of a dense sweep comes within the
+    clearance."""
+    import math
+
+    scene, model, _, _, checker, _ = wall
+    q = nominal_q(model, scene).copy()
+    q[:3] = (-0.05 - 0.215 - 0.011, 0.5, math.pi)  # wall face at x = -0.05, base radius 0.215 m
+    assert checker.distance(q) < 0.02 and not checker(q)
+    for joint, delta, most in (("arm_roll_joint", 0.3, 10), ("wrist_flex_joint", 0.3, 10), ("base_yaw", 0.5, 40)):
+        q2 = q.copy()
+        q2[model.index(joint)] += delta
+        calls = checker.calls
+        assert not checker.edge_collides(q, q2)
+        assert checker.calls - calls <= most, joint
+        dq = model.limits.difference(q2, q)
+        assert all(checker.distance(q + s * dq) >= checker.clearance for s in np.linspace(0.0, 1.0, 200))
+
+
 def test_the_library_answers_both_directions(wall):
     _, _, graph, _, _, planner = wall
     a, b = graph.alive[5], graph.alive[40]
@@ -132,6 +154,72 @@ def test_unreachable_targets_are_statuses(wall):
     far_away = np.array([9.0, 9.0, 2.5])  # the base can drive anywhere, but not lift the hand to 2.5 m
     assert planner.query(inside_wall, graph.X[graph.alive[0]]).status is QueryStatus.START_UNREACHABLE
     assert planner.query(graph.X[graph.alive[0]], far_away).status is QueryStatus.GOAL_UNREACHABLE
+
+
+def _fresh_planner(wall, seed: int = 1) -> ReachabilityPlanner:
+    """A planner on a copy of the fixture's graph (the tests below cut edges)."""
+    import copy
+
+    scene, model, graph, _, checker, _ = wall
+    g = copy.deepcopy(graph)
+    return ReachabilityPlanner(g, ReachIK(model, scene, nominal_q(model, scene)), checker, rng_seed=seed)
+
+
+def test_a_node_cut_off_by_hidden_edges_is_bridged_back(wall):
+    """While carrying, an edge free of the fixtures may be hidden for the query (too tight for the held
+    object): a node whose edges are all hidden is in the graph's component but cut off for the query.
+    A bridge must join it to the rest as the query sees the graph, through a new node with checked
+    edges, not sample round a pair inside one component."""
+    import networkx as nx
+
+    planner = _fresh_planner(wall)
+    g = planner.g
+    a = int(g.alive[7])
+    b = max(g.alive, key=lambda i: float(np.linalg.norm(g.X[i] - g.X[a])))
+    for n in list(g.G.neighbors(a)):
+        planner._carry_verdicts[(min(a, n), max(a, n))] = False
+
+    def open_view():
+        def shown(u: int, v: int) -> bool:
+            return planner._carry_verdicts.get((min(u, v), max(u, v))) is not False
+
+        return nx.subgraph_view(g.G, filter_edge=shown)
+
+    assert nx.has_path(g.G, a, b) and not nx.has_path(open_view(), a, b)
+    assert planner._bridge(a, b)
+    assert nx.has_path(open_view(), a, b)
+    new = [n for n in g.G.neighbors(a) if planner._carry_verdicts.get((min(a, n), max(a, n))) is not False]
+    assert new and all(g.G.edges[a, n]["checked"] for n in new)
+
+
+def test_a_configured_end_joins_its_joint_space_neighbours(wall):
+    """An end given with its configuration (the robot's, a keyframe's) is connected to the nodes nearest
+    in joint space as well as in task space: a posture next to a node's, with the hand moved away from
+    that node's point, still gets an edge to it."""
+    planner = _fresh_planner(wall)
+    g, model = planner.g, planner.ik.model
+    i = int(g.alive[3])
+    q = g.Q[i].copy()
+    q[g.plan_idx[3]] += 0.6  # the first arm joint: the hand swings away, the posture stays near node i's
+    x = model.fk(q, model.manipulator().tool_frame)[:3, 3]
+    n = planner.insert(x, q)
+    assert n is not None
+    assert i in g.G[n]
+    assert set(g.nearest_q(q, g.params.k, exclude=n)) <= set(g.G[n])
+
+
+def test_a_sampled_configuration_is_a_node_as_ik_would_validate_it(wall):
+    """``ReachIK.node_at`` (bridges and enhancements sample in joint space): the hand's position of a
+    graph node's configuration is that node's point, and a base inside a fixture's footprint is refused
+    like the IK refuses it."""
+    scene, _model, graph, _, _, planner = wall
+    for i in graph.alive[:10]:
+        node = planner.ik.node_at(graph.Q[i])
+        assert node is not None
+        assert np.linalg.norm(node[0] - graph.X[i]) <= POS_TOL and 0.0 <= node[1] <= graph.C[i] + 1e-6
+    q = graph.Q[graph.alive[0]].copy()
+    q[:2] = scene.fixtures[0].T[:2, 3]  # the base on a table's centre
+    assert planner.ik.node_at(q) is None
 
 
 def test_ompl_plans_a_certified_path_round_the_wall(wall):

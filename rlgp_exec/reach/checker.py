@@ -2,12 +2,15 @@
 
 A configuration is valid when the robot keeps ``CLEARANCE`` from every fixture and its links do not
 penetrate each other. An edge (a straight line in configuration space) is checked by *conservative
-advancement*: at each sample the robot's distance d to the fixtures is measured, and the next sample
-is placed where no robot point can have moved more than d - CLEARANCE. The bound on how far a point
-moves uses a radius per joint (1 m per metre of a prismatic or base joint; the robot's reach for the
-base yaw; the arm's length for arm joints). Between samples the robot therefore cannot touch a
-fixture: the check is exact for the continuous motion, not a sampled approximation. Self-collision,
-which the bound does not cover, is sampled every ``SELF_STEP`` [rad] of arm motion.
+advancement*: at each sample each robot link's distance d to the fixtures is measured, and the next
+sample is placed where no point of any link can have moved more than its d - CLEARANCE. The bound on
+how far a link's point moves sums, over the joints that move that link, a radius per joint (1 m per
+metre of a prismatic joint; the base's translation by its length; the robot's reach for the base
+yaw; the arm's length for arm joints): a link the edge's joints do not move (the base while only the
+arm moves) may stay close to a fixture without slowing the sweep. Between samples the robot
+therefore cannot touch a fixture: the check is exact for the continuous motion, not a sampled
+approximation. Self-collision, which the bound does not cover, is sampled every ``SELF_STEP`` [rad]
+of arm motion.
 
 A check can be split by ``part``: ``"fixed"`` is the robot against the fixtures and the cabinets with
 their drawers closed, and itself (what the reachability graph's edge verdicts hold for);
@@ -39,6 +42,7 @@ SELF_TOLERANCE = 1e-3  # [m] penetration allowed between robot links (touching n
 SELF_STEP = 0.02  # [rad or m] of arm motion between self-collision samples along an edge
 LOOKAHEAD = 0.5  # [m] distances are measured up to this far
 MIN_ADVANCE = 1e-3  # [m] smallest advance: closer than CLEARANCE + this counts as a collision
+FAR = 0.2  # [m] an obstacle measured 2 FAR away is not measured again along an edge while it stays FAR away
 
 
 def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
@@ -54,6 +58,38 @@ def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
             else max(0.3, 1.0 - 0.1 * k)
         )
     return r
+
+
+def vertical_lifts(body: int, client: int, joint_names: tuple[str, ...] | list[str]) -> list[int]:
+    """Indices into q of the prismatic ``*lift_joint`` joints moving along their parent's z axis."""
+    index = {n: i for i, n in enumerate(joint_names)}
+    out = []
+    for i in range(p.getNumJoints(body, physicsClientId=client)):
+        info = p.getJointInfo(body, i, physicsClientId=client)
+        name, kind, axis, parent_rot = info[1].decode(), info[2], info[13], info[15]
+        flat = np.allclose(np.abs(np.asarray(parent_rot, float)), [0.0, 0.0, 0.0, 1.0], atol=1e-9)
+        if name in index and name.endswith("lift_joint") and kind == p.JOINT_PRISMATIC and flat and (
+            np.allclose(np.abs(axis), [0.0, 0.0, 1.0], atol=1e-9)
+        ):
+            out.append(index[name])
+    return out
+
+
+def link_ancestors(body: int, client: int, joint_names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """(n_links + 1, nq) bool: row l + 1 marks the joints of q that move PyBullet link l (row 0: the
+    root). A link below a moving joint outside q (a mimic joint) is marked as moved by every joint."""
+    index = {n: i for i, n in enumerate(joint_names)}
+    n = p.getNumJoints(body, physicsClientId=client)
+    rows = np.zeros((n + 1, len(joint_names)), dtype=bool)
+    for i in range(n):  # PyBullet numbers a link after its parent
+        info = p.getJointInfo(body, i, physicsClientId=client)
+        name, kind, parent = info[1].decode(), info[2], info[16]
+        rows[i + 1] = rows[parent + 1]
+        if name in index:
+            rows[i + 1, index[name]] = True
+        elif kind != p.JOINT_FIXED:
+            rows[i + 1] = True
+    return rows
 
 
 class WorldChecker:
@@ -80,6 +116,14 @@ class WorldChecker:
         self.knob: int | None = None  # a cabinet body whose drawer the fingers may touch (the hand on its knob)
         hand = set(self.model.manipulator().links)
         self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
+        self._moved_by = link_ancestors(self.robot.id, self.client, self.model.joint_names)
+        self._tool_row = self.robot.link_index[self.tool] + 1
+        # the body: links that only the base and vertical lifts move (their distance from the base's
+        # axis is fixed, so the yaw moves them by that distance per radian, not by the arm's reach)
+        self._others = np.ones(self.model.nq, dtype=bool)  # the joints other than the base and the lifts
+        self._others[[0, 1, 2, *vertical_lifts(self.robot.id, self.client, self.model.joint_names)]] = False
+        self._shaped = np.array([i for i in range(p.getNumJoints(self.robot.id, physicsClientId=self.client))
+                                 if p.getCollisionShapeData(self.robot.id, i, physicsClientId=self.client)], dtype=int)
 
     @property
     def world_changed(self) -> bool:
@@ -149,7 +193,8 @@ class WorldChecker:
         at LOOKAHEAD); ``part`` restricts the pairs measured (module docstring)."""
         return self._distance(q, self._pairs(part))
 
-    def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
+    def _place(self, q: FloatArray, pairs: list[tuple[int, int]]) -> None:
+        """The robot at q, and the held object in its hand if ``pairs`` measure it."""
         self.robot.set_q(q, only_changed=True)
         if self.attached is not None and any(a == self.attached[0] for a, _ in pairs):
             body, T_to, _ = self.attached
@@ -157,6 +202,42 @@ class WorldChecker:
             p.resetBasePositionAndOrientation(
                 body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
             )
+
+    def _link_distances(
+        self, q: FloatArray, pairs: list[tuple[int, int]], far: dict[int, tuple[float, float]], moved: float
+    ) -> tuple[FloatArray, float]:
+        """(per robot link (PyBullet index + 1), the held object) smallest distances [m] to the pairs'
+        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link), or lower bounds of them.
+        ``far`` (pair index -> (its distance when measured, ``moved`` then)) holds the pairs measured at
+        least 2 FAR apart; ``moved`` [m] bounds how far any point has moved since the sweep began. A
+        pair whose distance less what has moved since is still FAR or more is not measured: that
+        lower bound stands for it (for every link)."""
+        self._place(q, pairs)
+        links = np.full(self._moved_by.shape[0], LOOKAHEAD)
+        held = LOOKAHEAD
+        robot = self.robot.id
+        for k, (a, b) in enumerate(pairs):
+            if k in far:
+                bound = far[k][0] - (moved - far[k][1])
+                if bound >= FAR:
+                    links, held = (links, min(held, bound)) if a != robot else (np.minimum(links, bound), held)
+                    continue
+                del far[k]
+            d = LOOKAHEAD
+            for c in p.getClosestPoints(a, b, LOOKAHEAD, physicsClientId=self.client):
+                if a != robot:
+                    held = min(held, float(c[8]))
+                elif not (b == self.knob and c[3] in self._fingers and c[4] == 0):  # (fingers round the knob)
+                    links[c[3] + 1] = min(links[c[3] + 1], float(c[8]))
+                else:
+                    continue
+                d = min(d, float(c[8]))
+            if d >= 2 * FAR:
+                far[k] = (d, moved)
+        return links, held
+
+    def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
+        self._place(q, pairs)
         d = LOOKAHEAD
         robot = self.robot.id
         for a, b in pairs:
@@ -192,9 +273,7 @@ class WorldChecker:
         if not pairs:
             return False
         dq = self.model.limits.difference(q2, q1)
-        extra = self.attached[2] if self.attached is not None and part != "fixed" else 0.0
-        radii = self.radii + extra  # a held object reaches further
-        bound = float(np.abs(dq) @ radii)  # max displacement of any robot (or held) point over the edge [m]
+        links_bound, held_bound = self._bounds(dq, part, q1)
         arm_len = float(np.abs(dq[self.arm]).max()) if self.arm.size else 0.0
         n_self = max(1, math.ceil(arm_len / SELF_STEP)) if part != "changed" else 0
         # the middle first: closer than the clearance there, the sweep below would stop there too (it
@@ -203,11 +282,13 @@ class WorldChecker:
         if self._distance(q1 + 0.5 * dq, pairs) < self.clearance:
             return True
         s, last_self = 0.0, -1.0
+        fastest = max(float(links_bound.max()), held_bound)  # [m] of motion of any point over the edge
+        far: dict[int, tuple[float, float]] = {}
         while True:
             q = q1 + s * dq
             self.calls += 1
-            d = self._distance(q, pairs)
-            if d < self.clearance + MIN_ADVANCE * (s < 1.0):
+            links, held = self._link_distances(q, pairs, far, s * fastest)
+            if min(float(links.min()), held) < self.clearance + MIN_ADVANCE * (s < 1.0):
                 return True
             if n_self and (s - last_self >= 1.0 / n_self or s >= 1.0):
                 if self.self_collision(q):
@@ -215,8 +296,48 @@ class WorldChecker:
                 last_self = s
             if s >= 1.0:
                 return False
-            step = (d - self.clearance) / bound if bound > 0 else 1.0
+            # each link (and the held object) may advance until it could have moved its own clearance
+            with np.errstate(divide="ignore"):
+                steps = np.where(links_bound > 0, (links - self.clearance) / links_bound, np.inf)
+            step = float(steps.min())
+            if held_bound > 0:
+                step = min(step, (held - self.clearance) / held_bound)
             s = min(1.0, s + max(step, 1e-6))
+
+    def _body_yaw_radii(self, q: FloatArray, dq: FloatArray) -> FloatArray:
+        """(rows as ``_link_distances``) for an edge from q by dq: each body link's (one that only the
+        base and vertical lifts move, rigid relative to the base's vertical axis) farthest distance
+        [m] from that axis (its bounding box's corners at q); the robot's reach for the other links."""
+        radii = np.full(self._moved_by.shape[0], self.radii[2])
+        moving = self._others & (dq != 0.0)
+        body = self._shaped[~self._moved_by[self._shaped + 1][:, moving].any(axis=1)]
+        self.robot.set_q(q, only_changed=True)
+        for link in body:
+            lo, hi = p.getAABB(self.robot.id, int(link), physicsClientId=self.client)
+            dx = max(abs(lo[0] - q[0]), abs(hi[0] - q[0]))
+            dy = max(abs(lo[1] - q[1]), abs(hi[1] - q[1]))
+            radii[link + 1] = min(radii[link + 1], math.hypot(dx, dy))
+        return radii
+
+    def _bounds(self, dq: FloatArray, part: Part, q1: FloatArray | None = None) -> tuple[FloatArray, float]:
+        """How far [m] any point of each robot link (rows as ``_link_distances``) and of the held object
+        can move over an edge of joint motion dq: the base's translation |(dx, dy)| plus, for each
+        other joint that moves the link, |dq_j| times that joint's radius (the yaw's, for a body link,
+        its distance from the base's axis at q1 when given); the held object's as the tool link's
+        with its reach added to each radius (0 when the held object is not checked)."""
+        w = np.abs(dq) * self.radii
+        w[:3] = 0.0
+        trans = float(np.hypot(dq[0], dq[1]))
+        links = self._moved_by @ w + trans * self._moved_by[:, :2].any(axis=1)
+        if dq[2] != 0.0:  # the yaw: the body links by their own distance from the axis (from q1)
+            yaw = self._body_yaw_radii(q1, dq) if q1 is not None else np.full(links.shape, self.radii[2])
+            links = links + abs(float(dq[2])) * yaw * self._moved_by[:, 2]
+        held = 0.0
+        if self.attached is not None and part != "fixed":
+            moves = self._moved_by[self._tool_row].copy()
+            moves[:2] = False
+            held = trans + float(np.abs(dq)[moves] @ (self.radii[moves] + self.attached[2]))
+        return links, held
 
     def close(self) -> None:
         self.world.close()

@@ -108,6 +108,16 @@ class ReachabilityGraph:
         out = [int(self._tree_ids[i]) for i in np.atleast_1d(idx)]
         return [i for i in out if i != exclude][:k]
 
+    def nearest_q(self, q: FloatArray, k: int, exclude: int | None = None) -> list[int]:
+        """The ``k`` alive nodes nearest to configuration ``q`` (``q_distance``), nearest first."""
+        ids = self.alive
+        if exclude is not None:
+            ids = ids[ids != exclude]
+        if not ids.size:
+            return []
+        d = np.linalg.norm(self.limits.difference(self.Q[ids], np.asarray(q, float)[None])[:, self.plan_idx], axis=1)
+        return [int(ids[i]) for i in np.argsort(d, kind="stable")[:k]]
+
     def connect_knn(self) -> None:
         """Connect every node to its k nearest neighbours, unchecked (lazy, as in the paper)."""
         for i in self.alive:

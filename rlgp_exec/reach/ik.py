@@ -155,6 +155,7 @@ class ReachIK:
             "ipopt.mu_init": 1e-3,
         }
         self._solver = ca.nlpsol("reach_ik", "ipopt", nlp, opts)
+        self.clearance = clearance
         self._fk_pos = ca.Function("fk_pos", [z], [pos])
         self.home_arm = model.home()[self.idx[3:]]
         T_home = model.fk(model.home(), self.tool)  # the tool's position in the base frame at home
@@ -171,6 +172,30 @@ class ReachIK:
                 if np.all(np.abs(p[:3]) <= np.asarray(b.size) / 2 + margin):
                     return fx_name
         return None
+
+    def base_clear(self, q: FloatArray) -> bool:
+        """The NLP's base constraint at q: every base circle ``clearance`` [m] beyond its radius from
+        every fixture footprint (exactly; the NLP's is smoothed by ~1e-3 m)."""
+        c, s = math.cos(q[self.idx[2]]), math.sin(q[self.idx[2]])
+        bx, by = q[self.idx[0]], q[self.idx[1]]
+        for _, Tf, size in self.fixtures:
+            for cx, cy, r in base_circles(self.model):
+                w = np.array([bx + c * cx - s * cy, by + s * cx + c * cy]) - Tf[:2, 3]
+                local = np.abs(Tf[:2, :2].T @ w) - np.asarray(size[:2]) / 2
+                if float(np.linalg.norm(np.maximum(local, 0.0))) < r + self.clearance:
+                    return False
+        return True
+
+    def node_at(self, q: FloatArray) -> tuple[FloatArray, float] | None:
+        """A node for a configuration found otherwise than by Eq. 2 (sampled): (x, c), x the tool's
+        position and c Eq. 2's objective for that target (its posture term), if q is within the
+        limits and its base keeps the NLP's clearance; else None. The robot's collisions are the
+        caller's, as for ``solve``."""
+        z = np.asarray(q, float)[self.idx]
+        if np.any(z[3:] < self.lo[3:]) or np.any(z[3:] > self.hi[3:]) or not self.base_clear(q):
+            return None
+        x = self.model.fk(q, self.tool)[:3, 3]
+        return x, W_REG * float(np.sum((z[3:] - self.home_arm) ** 2))
 
     def guess(self, x0: FloatArray, yaw: float) -> FloatArray:
         """z (n,): the base facing ``yaw`` placed so the arm's home reach lands on x0."""

@@ -34,8 +34,15 @@ __all__ = ["QueryStatus", "RGPath", "ReachabilityPlanner", "interpolate"]
 log = logging.getLogger(__name__)
 ENHANCE_SIGMAS = (0.25, 0.15, 0.08, 0.04)  # [m] the shrinking Gaussian's standard deviations
 ENHANCE_TRIES = 6  # samples per sigma
-MAX_REPLANS = 60
+MAX_REPLANS = 60  # replans after a path's edges were swept
+# replans in all, those after a probe only included (~5 ms each: a shortest path and a few distance
+# queries); round a table the task-space neighbours across it are cut one or two per replan
+MAX_PROBED = 400
 MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback (each costs up to ~50 IK solves)
+# configurations drawn per sigma round a bridge's or an enhancement's centre in joint space, before the
+# task-space samples (IK): ~1 ms each (kinematics and a collision check) against ~20 ms per IK solve
+Q_TRIES = 6
+Q_SCALE = 2.0  # [rad per m] the yaw's and the arm joints' standard deviation per sigma of the base's
 
 
 class QueryStatus(enum.Enum):
@@ -233,45 +240,97 @@ class ReachabilityPlanner:
             n += self.edge_valid(i, j) if check else 1
         return n
 
+    def _sample_q(self, q: FloatArray, sigma: float) -> tuple[FloatArray, FloatArray, float] | None:
+        """A node (x, q, c) drawn round configuration q in joint space (Gaussian over the planning
+        joints: ``sigma`` [m] on the base position, Q_SCALE * sigma [rad] on the rest), if it is one: in
+        the limits, the base clear as IK's (``ReachIK.node_at``), collision-free; None otherwise."""
+        z = np.array(q, float)
+        idx = self.g.plan_idx
+        scale = np.full(idx.size, Q_SCALE * sigma)
+        scale[:2] = sigma
+        z[idx] += self.rng.normal(0.0, 1.0, idx.size) * scale
+        z = self.g.limits.wrap(z)
+        node = self.ik.node_at(z)
+        if node is None or self.in_collision(z):
+            return None
+        return node[0], z, node[1]
+
+    def _candidates(self, x: FloatArray, q: FloatArray, tries: int, stage: str = "both"):
+        """New nodes (x, q, c) round a point: first drawn in joint space round q (``_sample_q``,
+        Q_TRIES per sigma; stage "q"), then task-space samples round x, each by IK (``tries`` per
+        sigma; stage "ik")."""
+        if stage in ("q", "both"):
+            for sigma in ENHANCE_SIGMAS:
+                for _ in range(Q_TRIES):
+                    sol = self._sample_q(q, sigma)
+                    if sol is not None:
+                        yield sol
+        if stage in ("ik", "both"):
+            for sigma in ENHANCE_SIGMAS:
+                for _ in range(tries):
+                    xs = x + self.rng.normal(0.0, sigma, 3)
+                    sol = self._solve_node(xs)
+                    if sol is not None:
+                        yield xs, *sol
+
     def _enhance(self, i: int) -> bool:
-        """Gaussian samples around node i, shrinking, until one connects i to the rest of the graph."""
+        """Samples around node i (``_candidates``), shrinking, until one connects i to the rest of the
+        graph."""
         self.counters["enhancements"] += 1
-        x = self.g.X[i]
-        for sigma in ENHANCE_SIGMAS:
-            for _ in range(ENHANCE_TRIES):
-                xs = x + self.rng.normal(0.0, sigma, 3)
-                sol = self._solve_node(xs)
-                if sol is None:
-                    continue
-                j = self.g.add_node(xs, *sol)
-                self.counters["nodes_added"] += 1
-                self.g.add_edge(i, j)
-                if not self.edge_valid(i, j) or self._connect(j, check=True) < 2:
-                    if self.g.G.degree(j) == 0:
-                        self.g.remove_node(j)
-                    continue
-                return True
+        for xs, qs, cs in self._candidates(self.g.X[i], self.g.Q[i], ENHANCE_TRIES):
+            j = self.g.add_node(xs, qs, cs)
+            self.counters["nodes_added"] += 1
+            self.g.add_edge(i, j)
+            if not self.edge_valid(i, j) or self._connect(j, check=True) < 2:
+                if self.g.G.degree(j) == 0:
+                    self.g.remove_node(j)
+                continue
+            return True
         return False
 
+    def _open(self) -> nx.Graph:
+        """The graph as this query sees it: without the edges hidden for it (``_carry_verdicts``)."""
+        if not any(v is False for v in self._carry_verdicts.values()):
+            return self.g.G
+        return nx.subgraph_view(self.g.G, filter_edge=lambda u, v: self._weight(u, v, {"weight": 0.0}) is not None)
+
+    def _closest_pairs(self, A: np.ndarray, B: np.ndarray, pairs: int) -> list[tuple[int, int]]:
+        """Up to ``pairs`` node pairs (u in A, v in B), u's nearest v in joint space (``q_distance``),
+        nearest pairs first, no u twice."""
+        idx = self.g.plan_idx
+        QA, QB = self.g.Q[A][:, idx], self.g.Q[B][:, idx]
+        cont = self.g.limits.continuous[idx]
+        best = np.full(A.size, np.inf)
+        arg = np.zeros(A.size, dtype=int)
+        for s in range(0, B.size, 256):  # blocks of B: (|A|, 256, n) differences at most
+            d = QB[None, s:s + 256] - QA[:, None]
+            d[..., cont] = (d[..., cont] + np.pi) % (2 * np.pi) - np.pi
+            n = np.linalg.norm(d, axis=2)
+            k = n.argmin(axis=1)
+            better = n[np.arange(A.size), k] < best
+            best[better], arg[better] = n[np.arange(A.size), k][better], s + k[better]
+        return [(int(A[k]), int(B[arg[k]])) for k in np.argsort(best, kind="stable")[:pairs]]
+
     def _bridge(self, a: int, b: int, pairs: int = 6) -> bool:
-        """Join the components of a and b: Gaussian samples around the midpoints of their closest node
-        pairs (task space) become nodes with checked edges to both sides."""
+        """Join the components of a and b (as this query sees the graph: a component cut off only by
+        edges hidden while carrying is a component of its own): samples round the midpoints of their
+        closest node pairs (in joint space, then in task space), first drawn in joint space for every
+        pair, then by IK (``_candidates``), become nodes with checked edges to both sides."""
         from scipy.spatial import cKDTree
 
         self.counters["enhancements"] += 1
-        A = np.fromiter(nx.node_connected_component(self.g.G, a), dtype=int)
-        B = np.fromiter(nx.node_connected_component(self.g.G, b), dtype=int)
+        view = self._open()
+        A = np.fromiter(nx.node_connected_component(view, a), dtype=int)
+        B = np.fromiter(nx.node_connected_component(view, b), dtype=int)
         d, j = cKDTree(self.g.X[B]).query(self.g.X[A])
-        for k in np.argsort(d)[:pairs]:
-            u, v = int(A[k]), int(B[j[k]])
-            mid = 0.5 * (self.g.X[u] + self.g.X[v])
-            for sigma in ENHANCE_SIGMAS:
-                for _ in range(2):
-                    xs = mid + self.rng.normal(0.0, sigma, 3)
-                    sol = self._solve_node(xs)
-                    if sol is None:
-                        continue
-                    n = self.g.add_node(xs, *sol)
+        in_task = [(int(A[k]), int(B[j[k]])) for k in np.argsort(d, kind="stable")[:pairs]]
+        closest = list(dict.fromkeys(self._closest_pairs(A, B, pairs) + in_task))
+        for stage in ("q", "ik"):
+            for u, v in closest:
+                mid = 0.5 * (self.g.X[u] + self.g.X[v])
+                q_mid = self.g.Q[u] + 0.5 * self.g.limits.difference(self.g.Q[v], self.g.Q[u])
+                for xs, qs, cs in self._candidates(mid, q_mid, 2, stage):
+                    n = self.g.add_node(xs, qs, cs)
                     self.g.add_edge(u, n)
                     self.g.add_edge(n, v)
                     if self.edge_valid(u, n) and self.edge_valid(n, v):
@@ -284,6 +343,7 @@ class ReachabilityPlanner:
     def insert(self, x: FloatArray, q: FloatArray | None = None) -> int | None:
         """A node at x (with q, or by IK), connected to the graph; None if x has no valid configuration.
         A target that is already a node (same x, no q given) is that node."""
+        given = q is not None
         if q is None:
             near = self.g.nearest(x, 1)
             if near and float(np.linalg.norm(self.g.X[near[0]] - np.asarray(x, float))) < 1e-9:
@@ -299,6 +359,10 @@ class ReachabilityPlanner:
         i = self.g.add_node(x, q, c)
         self.counters["nodes_added"] += 1
         self._connect(i, check=False)  # lazily: Dijkstra's path is checked, and a node cut off is enhanced
+        if given:  # a configuration of its own (the robot's, a keyframe's): its neighbours in joint space too
+            for j in self.g.nearest_q(q, self.g.params.k, exclude=i):
+                if not self.g.G.has_edge(i, j):
+                    self.g.add_edge(i, j)
         return i
 
     # ------------------------------------------------------------------ queries
@@ -345,8 +409,10 @@ class ReachabilityPlanner:
                 (time.perf_counter() - t0) * 1e3,
                 f"no collision-free configuration reaches {x2.round(3)}",
             )
-        bridges = 0
-        for _ in range(MAX_REPLANS):
+        bridges, swept = 0, 0
+        for _ in range(MAX_PROBED):
+            if swept >= MAX_REPLANS:
+                break
             try:
                 nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
             except nx.NetworkXNoPath:
@@ -356,6 +422,7 @@ class ReachabilityPlanner:
                 continue
             bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self._probe(u, v)]
             if not bad:  # no edge's middle collides: check them all (a free edge costs a whole sweep)
+                swept += 1
                 bad = [(u, v) for u, v in itertools.pairwise(nodes) if not self.edge_valid(u, v)]
             if not bad:
                 path = self.g.Q[nodes]
