@@ -429,39 +429,6 @@ def test_a_partial_restart_keeps_only_keyframes_the_failed_rows_do_not_read(scen
     assert _kept(prob, zk, np.ones(len(prob.row_keyframe), bool)) == {}
 
 
-@pytest.mark.parametrize("max_tilt", [0.0, 0.3])
-def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_tilt):
-    """A hand's approach axis a = Rz(phi) Ry(t) (0, 0, -1) meets ``approach_rows`` exactly when its tilt t is at
-    most max_tilt, in every direction phi; the rows active at the vertical hand have linearly independent
-    gradients in (t_x, t_y) (a_z = -1 as a row has none: IPOPT ended most keyframe solves with
-    ``Error_In_Step_Computation``)."""
-    import casadi as ca
-
-    from rlgp_exec.planning.nlp.factors import approach_rows
-
-    u = ca.SX.sym("u", 2)  # small rotations about x and y
-    cx, sx, cy, sy = ca.cos(u[0]), ca.sin(u[0]), ca.cos(u[1]), ca.sin(u[1])
-    Rx = ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, cx, -sx), ca.horzcat(0, sx, cx))
-    Ry = ca.vertcat(ca.horzcat(cy, 0, sy), ca.horzcat(0, 1, 0), ca.horzcat(-sy, 0, cy))
-    rows = approach_rows(Rx @ Ry @ ca.DM([0.0, 0.0, -1.0]), max_tilt)
-    g = ca.Function("g", [u], [ca.vertcat(*[r[0] for r in rows])])
-    lo, hi = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
-
-    def ok(t: float, phi: float) -> bool:
-        v = np.asarray(g([t * np.cos(phi), t * np.sin(phi)])).ravel()  # Rx(a) Ry(b) ~ a tilt of |(a, b)|
-        return bool(np.all(v >= lo - 1e-9) and np.all(v <= hi + 1e-9))
-
-    for phi in np.linspace(0.0, 2 * np.pi, 13):
-        assert ok(0.0, phi)
-        assert ok(0.97 * max_tilt, phi) or max_tilt == 0.0
-        assert not ok(max_tilt + 0.02, phi)
-    v0 = np.asarray(g([0.0, 0.0])).ravel()
-    active = np.flatnonzero((np.abs(v0 - lo) < 1e-9) | (np.abs(v0 - hi) < 1e-9))
-    J = np.asarray(ca.Function("J", [u], [ca.jacobian(g(u), u)])([0.0, 0.0]))
-    assert np.linalg.matrix_rank(J[active], tol=1e-6) == len(active)
-
-
-
 def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose():
     """A box ``_near_site`` leaves out (reach: the site disc's radius, ``finger_reach``, HAND_MARGIN, no
     slack) is clear of every finger sphere by the margin even with the tool on the disc's edge nearest the

@@ -21,7 +21,6 @@ __all__ = [
     "GRASP_DEPTH",
     "RobotSymbols",
     "Rows",
-    "approach_rows",
     "box_clear",
     "footprint_clear",
     "grasp_point",
@@ -133,23 +132,12 @@ def grasp_top(
     for i in range(3):
         rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)
-    for g, lower, upper in approach_rows(a, max_tilt):
-        rows.add(g, lower, upper)
+    rows.add(a[2], -1.0, -float(np.cos(max_tilt)))
     c = rs.tool_axis(rs.manip.closing)
     rows.add(c[2], 0.0, 0.0)
     ox, oy = ca.DM(T_obj[:3, 0]), ca.DM(T_obj[:3, 1])
     rows.add(ca.dot(c, ox) * ca.dot(c, oy), 0.0, 0.0)
     return 1.0 + a[2]
-
-
-def approach_rows(a: ca.SX, max_tilt: float) -> list[tuple[ca.SX, float, float]]:
-    """Rows (g, lower, upper) for a unit approach axis ``a`` (3,) pointing down within ``max_tilt`` [rad] of
-    vertical: a_z <= -cos(max_tilt), and a_x, a_y in [-1, 1] (always true); when ``max_tilt`` is 0, a_x = a_y = 0
-    and a_z <= 0 instead. a_z = -1 as a row is degenerate: it is a_z's minimum, where its gradient vanishes,
-    and IPOPT's steps then fail (``Error_In_Step_Computation``) or crawl. No row has a bound a unit
-    vector's component reaches only at its extreme (-1 or 1): those bounds hold anyway, and are as degenerate."""
-    lim = 0.0 if max_tilt <= 0.0 else 1.0
-    return [(a[2], -ca.inf, -float(np.cos(max_tilt)) if max_tilt > 0.0 else 0.0), (a[0], -lim, lim), (a[1], -lim, lim)]
 
 
 def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows: Rows) -> None:
@@ -166,8 +154,8 @@ def grasp_top_round(rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, floa
     hand's roll is free (the optimiser can turn the open fingers away from a wall). Returns 1 + a_z."""
     mine = Rows.empty()
     tilt = grasp_top(rs, T_obj, size, mine, **kw)  # depth, max_tilt
-    # grasp_top's rows: tool position (3), approach (3), closing horizontal, then the faces' row: dropped
-    for g, lo, hi in list(zip(mine.g, mine.lower, mine.upper, strict=True))[:7]:
+    # grasp_top's rows: tool position (3), approach, closing horizontal, then the faces' row: dropped
+    for g, lo, hi in list(zip(mine.g, mine.lower, mine.upper, strict=True))[:5]:
         rows.add(g, lo, hi)
     return tilt
 
