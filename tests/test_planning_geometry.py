@@ -494,3 +494,38 @@ def test_a_pick_seed_closes_the_fingers_across_the_faces_square_to_its_neighbour
         c = model.fk(ik.q_of(zr), ik.tool)[:3, :3] @ np.asarray(model.manipulator().closing)
         across = T_obj[:2, 1 - side]
         assert abs(c[:2] @ across) / np.linalg.norm(c[:2]) >= np.cos(np.radians(7.6))
+@pytest.mark.parametrize("max_tilt", [0.0, 0.3])
+def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_tilt):
+    """A hand's approach axis a = Rz(phi) Ry(t) (0, 0, -1) meets ``approach_rows`` exactly when its tilt t is at
+    most max_tilt, in every direction phi; the rows active at the vertical hand, with the closing axis's row
+    (``closing_bounds``), have linearly independent gradients in the hand's three rotations (a_z = -1 as a row
+    has none: IPOPT ended most keyframe solves with ``Error_In_Step_Computation``; c_z = 0 beside a_x = a_y = 0
+    is dependent: IPOPT regularised every step, ~3x the time per iteration)."""
+    import casadi as ca
+
+    from rlgp_exec.planning.nlp.factors import approach_rows, closing_bounds
+
+    u = ca.SX.sym("u", 3)  # small rotations about x, y and z
+    cx, sx, cy, sy = ca.cos(u[0]), ca.sin(u[0]), ca.cos(u[1]), ca.sin(u[1])
+    Rx = ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, cx, -sx), ca.horzcat(0, sx, cx))
+    Ry = ca.vertcat(ca.horzcat(cy, 0, sy), ca.horzcat(0, 1, 0), ca.horzcat(-sy, 0, cy))
+    Rz = ca.vertcat(ca.horzcat(ca.cos(u[2]), -ca.sin(u[2]), 0), ca.horzcat(ca.sin(u[2]), ca.cos(u[2]), 0),
+                    ca.horzcat(0, 0, 1))
+    R = Rx @ Ry @ Rz
+    c = R @ ca.DM([0.0, 1.0, 0.0])
+    rows = [*approach_rows(R @ ca.DM([0.0, 0.0, -1.0]), max_tilt), (c[2], *closing_bounds(max_tilt))]
+    g = ca.Function("g", [u], [ca.vertcat(*[r[0] for r in rows])])
+    lo, hi = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
+
+    def ok(t: float, phi: float) -> bool:
+        v = np.asarray(g([t * np.cos(phi), t * np.sin(phi), 0.0])).ravel()[:3]  # approach rows; tilt ~ |(a, b)|
+        return bool(np.all(v >= lo[:3] - 1e-9) and np.all(v <= hi[:3] + 1e-9))
+
+    for phi in np.linspace(0.0, 2 * np.pi, 13):
+        assert ok(0.0, phi)
+        assert ok(0.97 * max_tilt, phi) or max_tilt == 0.0
+        assert not ok(max_tilt + 0.02, phi)
+    v0 = np.asarray(g([0.0, 0.0, 0.0])).ravel()
+    active = np.flatnonzero((np.abs(v0 - lo) < 1e-9) | (np.abs(v0 - hi) < 1e-9))
+    J = np.asarray(ca.Function("J", [u], [ca.jacobian(g(u), u)])([0.0, 0.0, 0.0]))
+    assert np.linalg.matrix_rank(J[active], tol=1e-6) == len(active)

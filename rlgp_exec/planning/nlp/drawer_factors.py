@@ -32,9 +32,10 @@ def knob_grasp(rs: RobotSymbols, T_world_knob: FloatArray, rows: Rows) -> None:
     for i in range(3):
         rows.add(rs.tool_pos[i] - float(target[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)
-    rows.add(ca.dot(a, ca.DM(axis)), -1.0, -float(np.cos(HAND_TILT)))  # pointing into the cabinet
+    # no bound at a unit vector's extreme (-1, 1): it holds anyway, and is degenerate (``factors.approach_rows``)
+    rows.add(ca.dot(a, ca.DM(axis)), -ca.inf, -float(np.cos(HAND_TILT)))  # pointing into the cabinet
     c = rs.tool_axis(rs.manip.closing)
-    rows.add(c[2] * c[2], float(np.cos(HAND_TILT)) ** 2, 1.0)  # fingers above and below the knob
+    rows.add(c[2] * c[2], float(np.cos(HAND_TILT)) ** 2, ca.inf)  # fingers above and below the knob
 
 
 def follow_prismatic(z_k: ca.SX, z_prev: ca.SX, axis_world: FloatArray, d: float, rows: Rows) -> None:
@@ -53,4 +54,4 @@ def drop_above(
     [z_low, z_high] [m]."""
     inside_rectangle(T_obj[:2, 3], rect_T, half, rows)
     rows.add(T_obj[2, 3] - size[2] / 2, z_low, z_high)
-    rows.add(T_obj[2, 2], 0.999, 1.0)
+    rows.add(T_obj[2, 2], 0.999, ca.inf)  # upright

@@ -21,7 +21,9 @@ __all__ = [
     "GRASP_DEPTH",
     "RobotSymbols",
     "Rows",
+    "approach_rows",
     "box_clear",
+    "closing_bounds",
     "footprint_clear",
     "grasp_point",
     "grasp_top",
@@ -132,12 +134,31 @@ def grasp_top(
     for i in range(3):
         rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)
-    rows.add(a[2], -1.0, -float(np.cos(max_tilt)))
+    for g, lower, upper in approach_rows(a, max_tilt):
+        rows.add(g, lower, upper)
     c = rs.tool_axis(rs.manip.closing)
-    rows.add(c[2], 0.0, 0.0)
+    rows.add(c[2], *closing_bounds(max_tilt))
     ox, oy = ca.DM(T_obj[:3, 0]), ca.DM(T_obj[:3, 1])
     rows.add(ca.dot(c, ox) * ca.dot(c, oy), 0.0, 0.0)
     return 1.0 + a[2]
+
+
+def approach_rows(a: ca.SX, max_tilt: float) -> list[tuple[ca.SX, float, float]]:
+    """Rows (g, lower, upper) for a unit approach axis ``a`` (3,) pointing down within ``max_tilt`` [rad] of
+    vertical: a_z <= -cos(max_tilt), and a_x, a_y in [-1, 1] (always true); when ``max_tilt`` is 0, a_x = a_y = 0
+    and a_z <= 0 instead. a_z = -1 as a row is degenerate: it is a_z's minimum, where its gradient vanishes,
+    and IPOPT's steps then fail (``Error_In_Step_Computation``) or crawl. No row has a bound a unit
+    vector's component reaches only at its extreme (-1 or 1): those bounds hold anyway, and are as degenerate."""
+    lim = 0.0 if max_tilt <= 0.0 else 1.0
+    return [(a[2], -ca.inf, -float(np.cos(max_tilt)) if max_tilt > 0.0 else 0.0), (a[0], -lim, lim), (a[1], -lim, lim)]
+
+
+def closing_bounds(max_tilt: float) -> tuple[float, float]:
+    """Bounds of a top grasp's closing-axis row c_z (the fingers close horizontally): c_z = 0, except for a
+    vertical grasp (``max_tilt`` 0), where a_x = a_y = 0 already makes it hold (c is square to a); as a row it
+    would then be linearly dependent on those two, and IPOPT regularises every iteration's KKT system
+    (pick_place_pr2 seed 1: ~3x the time per iteration)."""
+    return (-ca.inf, ca.inf) if max_tilt <= 0.0 else (0.0, 0.0)
 
 
 def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows: Rows) -> None:
@@ -154,8 +175,8 @@ def grasp_top_round(rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, floa
     hand's roll is free (the optimiser can turn the open fingers away from a wall). Returns 1 + a_z."""
     mine = Rows.empty()
     tilt = grasp_top(rs, T_obj, size, mine, **kw)  # depth, max_tilt
-    # grasp_top's rows: tool position (3), approach, closing horizontal, then the faces' row: dropped
-    for g, lo, hi in list(zip(mine.g, mine.lower, mine.upper, strict=True))[:5]:
+    # grasp_top's rows: tool position (3), approach (3), closing horizontal, then the faces' row: dropped
+    for g, lo, hi in list(zip(mine.g, mine.lower, mine.upper, strict=True))[:7]:
         rows.add(g, lo, hi)
     return tilt
 

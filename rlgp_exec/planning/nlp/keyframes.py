@@ -34,7 +34,9 @@ from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, 
 from rlgp_exec.planning.nlp.factors import (
     RobotSymbols,
     Rows,
+    approach_rows,
     box_clear,
+    closing_bounds,
     footprint_clear,
     grasp_point,
     grasp_top,
@@ -330,7 +332,8 @@ def _constraints(rows: Rows) -> ca.SX:
 @dataclass(frozen=True)
 class _Problem:
     """A built keyframe NLP for one action sequence: the solver and what its solutions are read with.
-    The grasps' tilt bound is not in ``ubg``: rows ``tilt_rows`` get -cos(max_tilt) per solve."""
+    The grasps' tilt bounds are not in ``lbg``/``ubg``: the approach rows from each of ``tilt_rows`` get
+    ``approach_rows``' bounds for each solve's max_tilt."""
 
     n: int
     K: int
@@ -470,7 +473,7 @@ def _build(
                 # object pivots about them as the fingers close (seen in physics: a cup tipped ~30 deg)
                 tilts.append(grasp_top_round(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             else:  # flat faces: the pads stay vertical (closing axis horizontal), the box stays upright
-                tilt_rows.append(len(rows.g) + 3)  # grasp_top's approach row: its bound is the tilt, set per solve
+                tilt_rows.append(len(rows.g) + 3)  # grasp_top's approach rows: their bounds set per solve
                 tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
             grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
             held, picked_at = a.obj, k
@@ -488,7 +491,7 @@ def _build(
                 margin = max(o.size[0], o.size[1]) / 2
                 inside_rectangle(T_obj[:2, 3], T_tgt, (max(half[0] - margin, 0.0), max(half[1] - margin, 0.0)), rows)
                 rows.add(T_obj[2, 3] - (z_surf + o.size[2] / 2 + PLACE_LIFT), 0.0, 0.0)
-                rows.add(T_obj[2, 2], 0.999, 1.0)  # upright
+                rows.add(T_obj[2, 2], 0.999, ca.inf)  # upright (no bound at 1: ``factors.approach_rows``)
                 targets.append(T_tgt[:3, 3] + np.array([0.0, 0.0, o.size[2]]))
             else:
                 v = drawers[a.target]
@@ -628,9 +631,12 @@ def solve_keyframes(
     n, K, solver, f_motion, labels, targets = prob.n, prob.K, prob.solver, prob.f_motion, prob.labels, prob.targets
     opening_at, footprints_at, poses = prob.opening_at, prob.footprints_at, prob.poses
     openings0, held_T0, sizes = prob.openings0, prob.held_grasp, prob.sizes
-    lbx, ubx, lbg = prob.lbx, prob.ubx, prob.lbg
-    ubg = prob.ubg.copy()
-    ubg[prob.tilt_rows] = -float(np.cos(max_tilt))
+    lbx, ubx = prob.lbx, prob.ubx
+    lbg, ubg = prob.lbg.copy(), prob.ubg.copy()
+    for r in prob.tilt_rows:  # the approach rows of box grasps, for this tilt
+        for i, (_, lower, upper) in enumerate(approach_rows(ca.SX.zeros(3), max_tilt)):
+            lbg[r + i], ubg[r + i] = lower, upper
+        lbg[r + 3], ubg[r + 3] = closing_bounds(max_tilt)  # grasp_top's closing row, after the approach rows
     rng = np.random.default_rng(seed)
     z_start = ik.z_of(q_start)
 
