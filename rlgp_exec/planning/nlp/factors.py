@@ -21,6 +21,7 @@ __all__ = [
     "GRASP_DEPTH",
     "RobotSymbols",
     "Rows",
+    "approach_bounds",
     "approach_rows",
     "box_clear",
     "closing_bounds",
@@ -149,8 +150,13 @@ def approach_rows(a: ca.SX, max_tilt: float) -> list[tuple[ca.SX, float, float]]
     and a_z <= 0 instead. a_z = -1 as a row is degenerate: it is a_z's minimum, where its gradient vanishes,
     and IPOPT's steps then fail (``Error_In_Step_Computation``) or crawl. No row has a bound a unit
     vector's component reaches only at its extreme (-1 or 1): those bounds hold anyway, and are as degenerate."""
+    return [(g, lo, hi) for g, (lo, hi) in zip((a[2], a[0], a[1]), approach_bounds(max_tilt), strict=True)]
+
+
+def approach_bounds(max_tilt: float) -> list[tuple[float, float]]:
+    """The (lower, upper) bounds of ``approach_rows``' rows (a_z, a_x, a_y) for ``max_tilt`` [rad]."""
     lim = 0.0 if max_tilt <= 0.0 else 1.0
-    return [(a[2], -ca.inf, -float(np.cos(max_tilt)) if max_tilt > 0.0 else 0.0), (a[0], -lim, lim), (a[1], -lim, lim)]
+    return [(-ca.inf, -float(np.cos(max_tilt)) if max_tilt > 0.0 else 0.0), (-lim, lim), (-lim, lim)]
 
 
 def closing_bounds(max_tilt: float) -> tuple[float, float]:

@@ -34,7 +34,7 @@ from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, 
 from rlgp_exec.planning.nlp.factors import (
     RobotSymbols,
     Rows,
-    approach_rows,
+    approach_bounds,
     box_clear,
     closing_bounds,
     footprint_clear,
@@ -280,12 +280,13 @@ def _face_roll(
         c = model.fk(ik.q_of(zz), ik.tool)[:3, :3] @ closing
         return abs(float(c[0] * want[1] - c[1] * want[0])) / max(float(np.linalg.norm(c[:2])), 1e-9)
 
-    best = z
+    best, best_m = z, misalign(z)
     for turn in np.linspace(-math.pi / 2, math.pi / 2, 13):  # the roll joint, in 15 degree steps (fingers: mod pi)
         zz = z.copy()
         zz[-1] = np.clip(z[-1] + turn, ik.lo[-1], ik.hi[-1])
-        if misalign(zz) < misalign(best) - 1e-6:
-            best = zz
+        m = misalign(zz)
+        if m < best_m - 1e-6:
+            best, best_m = zz, m
     return best
 
 
@@ -425,22 +426,22 @@ def _build(
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
         self_clear(model, rs.q, list(self_spheres), list(body), rows)
+        site, r_site = _site_disc(scene, a, poses, drawers, openings)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
             # the open fingers keep the graph's clearance (and a little) from fixtures and standing objects:
             # the vertical approach from above then starts from a configuration the graph accepts. Only boxes the
             # fingers can reach from the action's site have rows (the others hold wherever the tool meets its site)
-            site, r_site = _site_disc(scene, a, poses, drawers, openings)
-            if a.name in ("place", "drop"):  # the tool is in the held object, whose centre is on the site
-                r_site += float(np.linalg.norm(objs[a.obj].size)) / 2
-            reach = r_site + hand_reach + HAND_MARGIN + REACH_SLACK
+            r_tool = r_site  # where the tool can be: in the held object, whose centre is on the site
+            if a.name in ("place", "drop"):
+                r_tool += float(np.linalg.norm(objs[a.obj].size)) / 2
+            reach = r_tool + hand_reach + HAND_MARGIN + REACH_SLACK
             near_bx = _near_site(fixture_bx + still_bx, site, reach)
             points_clear(rs.T_tool, list(hand), near_bx, rows, margin=HAND_MARGIN)
             points_clear(rs.T_tool, list(hand), _near_site(finger_bx, site, reach), rows)  # knob grasps come close
         # mesh fingers (the PR2's) keep PyBullet's keyframe clearance from the standing objects, and every
         # finger from the objects set down at earlier keyframes (where those keyframes put them)
         if mesh_hand or placed:
-            site, r_site = _site_disc(scene, a, poses, drawers, openings)
             near = [b for b in still_bx
                     if np.linalg.norm(b.T[:2, 3] - site) < r_site + float(np.hypot(*b.size[:2])) / 2 + FINGER_REACH]
             points_clear(rs.T_tool, list(mesh_hand), near, rows, margin=CLEARANCE)
@@ -634,7 +635,7 @@ def solve_keyframes(
     lbx, ubx = prob.lbx, prob.ubx
     lbg, ubg = prob.lbg.copy(), prob.ubg.copy()
     for r in prob.tilt_rows:  # the approach rows of box grasps, for this tilt
-        for i, (_, lower, upper) in enumerate(approach_rows(ca.SX.zeros(3), max_tilt)):
+        for i, (lower, upper) in enumerate(approach_bounds(max_tilt)):
             lbg[r + i], ubg[r + i] = lower, upper
         lbg[r + 3], ubg[r + 3] = closing_bounds(max_tilt)  # grasp_top's closing row, after the approach rows
     rng = np.random.default_rng(seed)
