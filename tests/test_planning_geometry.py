@@ -415,10 +415,19 @@ def test_a_partial_restart_keeps_only_keyframes_the_failed_rows_do_not_read(scen
     J = prob.solver.get_function("nlp_jac_g").sparsity_out(1)
     rows, cols = J.get_triplet()
     assert len(prob.row_keyframe) == J.size1()
+    nz = prob.n * prob.K  # after the keyframes: the pose variables (12 each), standing for the keyframes they read
+    assert J.size2() == nz + 12 * len(prob.aux_reads)
     for r, c in zip(rows, cols, strict=True):
         k = int(prob.row_keyframe[r])
-        assert c // prob.n in (k, *prob.couples[k]), (r, prob.labels[r], k, c // prob.n)
+        read = (c // prob.n,) if c < nz else prob.aux_reads[(c - nz) // 12]
+        assert set(read) <= {k, *prob.couples[k]}, (r, prob.labels[r], k, read)
     assert any(prob.couples[k] for k in range(prob.K))  # a place reads its pick, an open its knob grasp
+    # the pose variables start where any keyframes put them: their rows hold
+    z = np.random.default_rng(0).uniform(np.maximum(prob.lbx[:nz], -3.0), np.minimum(prob.ubx[:nz], 3.0))
+    g = np.asarray(prob.solver.get_function("nlp_g")(np.r_[z, np.asarray(prob.aux0(z)).reshape(-1)], 0)).reshape(-1)
+    pose_rows = [r for r, label in enumerate(prob.labels) if label.endswith(" pose")]
+    assert len(pose_rows) == 12 * len(prob.aux_reads) > 0
+    assert np.allclose(g[pose_rows], 0.0, atol=1e-12)
     zk = np.arange(prob.K * prob.n, dtype=float).reshape(prob.K, prob.n)
     own = [k for k in range(prob.K) if prob.targets[k] is not None]
     for k in range(prob.K):

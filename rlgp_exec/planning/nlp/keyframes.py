@@ -321,6 +321,24 @@ def _objects_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, tool_margin: 
             rows.add(box_sdf(pl, half), r + (tool_margin if frame == tool else ARM_MARGIN), ca.inf)
 
 
+def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
+    """A variable P (12,) for the pose ``T`` (4, 4), an expression of keyframes (where a place releases
+    its object: the hand there times the grasp, which reads the pick), with the 12 rows P = T[:3, :4]
+    (column-major): returns P and T_P (4, 4) built from it. Rows that read T_P (the place's own, and
+    later keyframes' fingers kept off the placed object, objects set down apart) read P alone, not the
+    keyframes behind it, and the Lagrangian's Hessian keeps its block structure. pick_place_pr2, 6
+    actions: rows reading 3 or 4 keyframes made the Hessian 60 x 60 dense; IPOPT's Hessian had 407k
+    instructions and nlpsol took 1.2 s, against 264k and 0.4 s with the pose variables (a grasp
+    variable as well, T_tool_obj read by the place, changed neither)."""
+    P = ca.SX.sym(name, 12)
+    T34 = ca.vec(T[:3, :4])
+    for i in range(12):
+        rows.add(P[i] - T34[i], 0.0, 0.0)
+    T_P = ca.SX.eye(4)
+    T_P[:3, :4] = ca.reshape(P, 3, 4)
+    return P, T_P
+
+
 def _constraints(rows: Rows) -> ca.SX:
     """The rows' g as one column, common subexpressions merged (``ca.cse``): a keyframe's forward
     kinematics and each sphere's position are built once per box they are kept from, and IPOPT's
@@ -355,6 +373,8 @@ class _Problem:
     tilt_rows: list[int]
     row_keyframe: FloatArray  # (rows,) the keyframe whose action each row belongs to
     couples: tuple[tuple[int, ...], ...]  # per keyframe: the other keyframes its rows also read
+    aux0: ca.Function  # vec(Z) (n K,) -> the pose variables (12 each) that agree with those keyframes
+    aux_reads: tuple[tuple[int, ...], ...]  # per pose variable: the keyframes its pose is an expression of
 
 
 def _build(
@@ -404,6 +424,7 @@ def _build(
     row_keyframe: list[int] = []
     couples: list[tuple[int, ...]] = []
     picked_at: int | None = None  # the keyframe of the grasp held now (None: the start's, or none)
+    aux: list[tuple[ca.SX, ca.SX, tuple[int, ...]]] = []  # pose variables: (P, its expression, keyframes read)
     for k, a in enumerate(actions):
         row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
         couples.append(())
@@ -484,9 +505,13 @@ def _build(
             if held != a.obj or grasp is None or a.target is None:
                 raise RlgpError(f"keyframe NLP: {a} without holding {a.obj} (holding {held})")
             o = objs[a.obj]
-            T_obj = rs.T_tool @ grasp
             if picked_at is not None:
                 couples[k] = (*couples[k], picked_at)
+            T_hand_obj = rs.T_tool @ grasp  # where the object is released: a variable, read by this place's
+            P, T_obj = _pose_variable(f"T_{a.obj}_{k}", T_hand_obj, rows)  # rows and by later keyframes'
+            aux.append((P, ca.vec(T_hand_obj[:3, :4]), (k, *couples[k])))
+            labels += [f"{a} pose"] * (len(rows.g) - n0)
+            n0 = len(rows.g)
             if a.name == "place":
                 T_tgt, half, z_surf = _target_surface(scene, a.target)
                 margin = max(o.size[0], o.size[1]) / 2
@@ -531,20 +556,24 @@ def _build(
     w_motion, w_seed, Z_seed = ca.SX.sym("w_motion"), ca.SX.sym("w_seed"), ca.SX.sym("z_seed", n * K)
     d_seed = ca.vec(Z) - Z_seed
     objective = w_motion * cost + w_seed * ca.sumsqr(d_seed)
-    nlp = {"x": ca.vec(Z), "p": ca.vertcat(w_motion, w_seed, Z_seed), "f": objective, "g": _constraints(rows)}
+    x = ca.vertcat(ca.vec(Z), *(P for P, _, _ in aux))
+    nlp = {"x": x, "p": ca.vertcat(w_motion, w_seed, Z_seed), "f": objective, "g": _constraints(rows)}
     solver = ca.nlpsol(
         "keyframes",
         "ipopt",
         nlp,
         {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400, "ipopt.tol": 1e-7},
     )
-    lbx = np.tile(ik.lo, K)
-    ubx = np.tile(ik.hi, K)
+    n_aux = 12 * len(aux)
+    lbx = np.r_[np.tile(ik.lo, K), np.full(n_aux, -np.inf)]
+    ubx = np.r_[np.tile(ik.hi, K), np.full(n_aux, np.inf)]
+    aux0 = ca.Function("aux0", [ca.vec(Z)], [ca.vertcat(*(e for _, e, _ in aux)) if aux else ca.DM(0, 1)])
     lbg, ubg = np.asarray(rows.lower, float), np.asarray(rows.upper, float)
     f_motion = ca.Function("f_motion", [ca.vec(Z)], [cost])
     return _Problem(
         n, K, solver, f_motion, labels, targets, opening_at, footprints_at, poses, openings0, held_T0, sizes,
-        lbx, ubx, lbg, ubg, tilt_rows, np.asarray(row_keyframe, int), tuple(couples),
+        lbx, ubx, lbg, ubg, tilt_rows, np.asarray(row_keyframe, int), tuple(couples), aux0,
+        tuple(r for _, _, r in aux),
     )
 
 
@@ -692,13 +721,15 @@ def solve_keyframes(
             tried[k].append(z.copy())
             init.append(z)
         z_init = np.concatenate(init)
-        res, viol, worst = solve(z_init, 0.0, 1.0, z_init)  # stage 1: feasible near the seeds
+        x_init = np.r_[z_init, np.asarray(prob.aux0(z_init)).reshape(-1)]
+        res, viol, worst = solve(x_init, 0.0, 1.0, z_init)  # stage 1: feasible near the seeds
         if viol <= FEAS_TOL:  # stage 2: the motion cost, from there (kept only if still feasible)
             res2, viol2, worst2 = solve(np.asarray(res["x"]).reshape(-1), 1.0, 0.0, z_init)
             if viol2 <= FEAS_TOL:
                 res, viol, worst = res2, viol2, worst2
         restarted, keep = bool(keep), {}  # a partial restart is tried once, then a fresh start
-        zk = np.asarray(ca.reshape(res["x"], n, K)).T
+        x_z = np.asarray(res["x"]).reshape(-1)[: n * K]  # the keyframes (the pose variables follow them)
+        zk = x_z.reshape(K, n)
         if viol > FEAS_TOL and not restarted:  # restart the keyframes whose rows IPOPT could not satisfy
             g = np.asarray(res["g"]).reshape(-1)
             keep = _kept(prob, zk, np.maximum(lbg - g, g - ubg) > FEAS_TOL)
@@ -715,13 +746,13 @@ def solve_keyframes(
                     keep = {k: zk[k] for k in range(K) if k not in bad and targets[k] is not None}
         status = solver.stats()["return_status"]
         log.debug("keyframes attempt %d: violation %.2e (%s) %s", _attempt, viol, worst, status)
-        cand = (viol, float(f_motion(res["x"])), np.asarray(res["x"]).reshape(-1), worst)
+        cand = (viol, float(f_motion(x_z)), x_z, worst)
         if best is None or (cand[0] < best[0] - 1e-9) or (cand[0] <= FEAS_TOL and cand[1] < best[1]):
             best = cand
         if viol <= FEAS_TOL:
             break
     viol, f, zflat, worst_row = best  # type: ignore[misc]
-    zs = np.asarray(ca.reshape(ca.DM(zflat), n, K)).T  # ca.vec is column-major: column k is keyframe k
+    zs = zflat.reshape(K, n)  # ca.vec is column-major: column k of Z is keyframe k
     # IPOPT may end a hair outside a bound (its bound relaxation, ~1e-8): keyframes are kept inside
     keyframes = np.array([ik.q_of(np.clip(z, ik.lo, ik.hi)) for z in zs])
     # object poses after each action, evaluated numerically
