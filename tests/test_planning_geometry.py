@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -224,7 +225,6 @@ def test_pick_between_close_blocks_is_feasible():
 def test_objects_clear_keeps_the_tool_sphere_at_its_own_margin():
     """Every arm sphere keeps ARM_MARGIN beyond its radius from a standing object; the tool's keeps the
     margin it is given (a pick: HAND_MARGIN)."""
-    import casadi as ca
 
     from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
     from rlgp_exec.planning.nlp.keyframes import ARM_MARGIN, HAND_MARGIN, _objects_clear
@@ -271,7 +271,6 @@ def test_graph_seed_orders_the_free_seeds_by_base_distance():
 def test_merged_constraints_equal_the_rows():
     """_constraints (common subexpressions merged) evaluates to the rows' own values at random
     configurations of the PR2 near a table and a standing block."""
-    import casadi as ca
 
     from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear
     from rlgp_exec.planning.nlp.keyframes import _constraints, _objects_clear
@@ -361,7 +360,6 @@ def test_a_pick_pinned_into_a_neighbour_is_infeasible_before_any_start():
 def test_a_box_at_an_expression_pose_gives_the_rows_of_the_same_box_at_a_number():
     """``points_clear_moving`` (an object set down at another keyframe) and ``points_clear`` (a box where
     it stands) agree when the pose is a number, at random hand poses."""
-    import casadi as ca
     from scipy.spatial.transform import Rotation
 
     from rlgp_exec.planning.nlp.factors import Rows
@@ -438,6 +436,41 @@ def test_a_partial_restart_keeps_only_keyframes_the_failed_rows_do_not_read(scen
     assert _kept(prob, zk, np.ones(len(prob.row_keyframe), bool)) == {}
 
 
+def test_the_keyframe_hessian_is_the_lagrangians_without_the_clearance_rows_curvature():
+    """IPOPT's Hessian of the keyframe NLP is exact for the objective and the task rows (grasp,
+    placement, pose variables) and leaves out only the clearance and footprint rows' curvature: it
+    equals the exact Hessian of the Lagrangian with those rows' multipliers zeroed, at random points,
+    and those rows do have curvature (the exact Hessian with all multipliers differs)."""
+    from rlgp_exec.planning.drawers import drawer_views
+    from rlgp_exec.planning.nlp.keyframes import CURVATURE_FREE, _build
+    from rlgp_exec.planning.sequence import SequenceGeometry
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    geo = SequenceGeometry(scene, seed=0)
+    acts = [a for b in ("block_a", "block_b") for a in (Action("pick", b), Action("place", b, "tray"))]
+    try:
+        prob = _build(geo.model, scene, geo.q0, acts, None, geo.ik, geo.hand, geo.self_spheres, geo.body, 0.12,
+                      {o.name: o for o in scene.objects}, drawer_views(scene), geo.mesh_hand)
+    finally:
+        geo.close()
+    S = prob.solver
+    nx, ng, npar = S.size1_in("x0"), S.size1_in("lam_g0"), S.size1_in("p")
+    x, p, lam = ca.SX.sym("x", nx), ca.SX.sym("p", npar), ca.SX.sym("lam", ng)
+    f, g = S.get_function("nlp_f")(x, p), S.get_function("nlp_g")(x, p)
+    exact = ca.Function("H", [x, p, lam], [ca.triu(ca.hessian(2.0 * f + ca.dot(lam, g), x)[0])])
+    free = np.array([label.endswith(CURVATURE_FREE) for label in prob.labels])
+    assert 0 < free.sum() < ng
+    rng = np.random.default_rng(3)
+    differs = False
+    for _ in range(3):
+        z = rng.uniform(np.maximum(prob.lbx, -2.0), np.minimum(prob.ubx, 2.0))
+        pv, lv = rng.uniform(0.0, 1.0, npar), rng.normal(size=ng)
+        H = np.asarray(ca.densify(S.get_function("nlp_hess_l")(z, pv, 2.0, lv)))
+        assert np.allclose(H, np.asarray(ca.densify(exact(z, pv, np.where(free, 0.0, lv)))), atol=1e-9)
+        differs |= not np.allclose(H, np.asarray(ca.densify(exact(z, pv, lv))), atol=1e-6)
+    assert differs
+
+
 def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose():
     """A box ``_near_site`` leaves out (reach: the site disc's radius, ``finger_reach``, HAND_MARGIN, no
     slack) is clear of every finger sphere by the margin even with the tool on the disc's edge nearest the
@@ -510,7 +543,6 @@ def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_til
     (``closing_bounds``), have linearly independent gradients in the hand's three rotations (a_z = -1 as a row
     has none: IPOPT ended most keyframe solves with ``Error_In_Step_Computation``; c_z = 0 beside a_x = a_y = 0
     is dependent: IPOPT regularised every step, ~3x the time per iteration)."""
-    import casadi as ca
 
     from rlgp_exec.planning.nlp.factors import approach_rows, closing_bounds
 
