@@ -570,3 +570,29 @@ def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_til
     active = np.flatnonzero((np.abs(v0 - lo) < 1e-9) | (np.abs(v0 - hi) < 1e-9))
     J = np.asarray(ca.Function("J", [u], [ca.jacobian(g(u), u)])([0.0, 0.0, 0.0]))
     assert np.linalg.matrix_rank(J[active], tol=1e-6) == len(active)
+
+
+def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear():
+    """``self_rows_function`` gives the rows ``self_clear`` builds (values at random configurations), the
+    same function again for arguments with equal contents, and another for another body."""
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
+    from rlgp_exec.planning.nlp.hand import self_clear, self_rows_function
+    from rlgp_exec.planning.sequence import SequenceGeometry
+
+    scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
+    geo = SequenceGeometry(scene, seed=0)
+    geo.close()
+    spheres, body = geo.self_spheres, geo.body
+    fn, lower = self_rows_function(geo.model, None, (), geo.q0, spheres, body)
+    again = self_rows_function(geo.model, None, (), geo.q0.copy(), list(spheres), [(f, b) for f, b in body])
+    assert again[0] is fn
+    assert self_rows_function(geo.model, None, (), geo.q0, spheres, body[:-1])[0] is not fn
+    z = ca.SX.sym("z", fn.size1_in(0))
+    rows = Rows.empty()
+    self_clear(geo.model, RobotSymbols(geo.model, geo.q0, None, z).q, list(spheres), list(body), rows)
+    direct = ca.Function("direct", [z], [ca.vertcat(*rows.g)])
+    assert len(lower) == len(rows.lower) > 0 and np.array_equal(lower, rows.lower)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        zv = rng.uniform(-1.0, 1.0, fn.size1_in(0))
+        assert np.allclose(np.asarray(fn(zv)), np.asarray(direct(zv)), atol=1e-12)

@@ -95,9 +95,8 @@ class SequenceGeometry:
         self.mesh_hand = mesh_finger_spheres(self.checker.robot, self.model, self.q0)  # keyframes only
         self.self_spheres = arm_link_spheres(self.model)
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
-        # level 3's self-clearance: the body and the other arms where q0 has them (built once, in _path_cache)
+        # level 3's self-clearance: the body and the other arms where q0 has them
         self.l3_body = self.body + other_arm_obstacles(self.checker.robot, self.model, self.q0)
-        self._path_cache: dict = {}
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
         self.level3, self.T = level3, T
@@ -311,7 +310,7 @@ class SequenceGeometry:
         None when level 3 failed (the phases unchanged)."""
         segs = [self._segment(g) for g in guides]
         res = optimize_paths(self.model, segs, self.T, hand=self.hand, self_spheres=self.self_spheres,
-                             body=self.l3_body, cache=self._path_cache)
+                             body=self.l3_body)
         self.l3 = replace(
             self.l3, attempts=self.l3.attempts + 1, solved=self.l3.solved + res.ok,
             time_s=self.l3.time_s + res.build_s + res.solve_s, jac_nnz=res.jac_nnz, n_var=res.n_var,

@@ -58,7 +58,6 @@ class Trajectories:
             }
         finally:
             p.disconnect(client)
-        self._cache: dict[str, dict] = {arm: {} for arm in lib.arms}  # the path NLP's per-arm rows
         self.stats = Level3Stats()
 
     def _segment(self, phases: Sequence[Phase], t: Transit) -> Segment:
@@ -82,7 +81,7 @@ class Trajectories:
                 continue
             spheres, body = self.shapes[arm]
             res = optimize_paths(self.lib.model, [self._segment(phases, t) for t in mine], self.T, manipulator=arm,
-                                 hand=self.hand, self_spheres=spheres, body=body, cache=self._cache[arm])
+                                 hand=self.hand, self_spheres=spheres, body=body)
             s = self.stats
             self.stats = replace(s, attempts=s.attempts + 1, solved=s.solved + res.ok,
                                  time_s=s.time_s + res.build_s + res.solve_s, jac_nnz=res.jac_nnz, n_var=res.n_var)

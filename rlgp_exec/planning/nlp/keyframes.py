@@ -43,7 +43,7 @@ from rlgp_exec.planning.nlp.factors import (
     grasp_top_round,
     inside_rectangle,
 )
-from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_clear
+from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, base_circles, box_sdf
@@ -413,6 +413,7 @@ def _build(
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
     Z = ca.SX.sym("z", n, K)
+    self_rows = self_rows_function(model, manipulator, (), q_start, self_spheres, body)
     tilt_rows: list[int] = []
     rows = Rows.empty()
     hand_reach = finger_reach(hand)
@@ -464,7 +465,10 @@ def _build(
         still_bx = [replace(b, T=poses[b.name]) for b in still]
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
-        self_clear(model, rs.q, list(self_spheres), list(body), rows)
+        g_self, lb_self = self_rows
+        g_self = g_self(Z[:, k])
+        for i, lower in enumerate(lb_self):
+            rows.add(g_self[i], float(lower), ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]

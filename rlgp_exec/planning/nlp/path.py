@@ -48,7 +48,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
-from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_clear
+from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_rows_function
 from rlgp_exec.planning.nlp.keyframes import W_BASE
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene.geometry import Box
@@ -150,15 +150,6 @@ def _held_spheres(held: tuple[FloatArray, FloatArray] | None) -> list[tuple[Floa
         return []
     size, T_tool_obj = held
     return [((T_tool_obj @ np.r_[c, 1.0])[:3], r) for c, r in _box_cover(np.asarray(size, float))]
-
-
-def _self_rows(model, manip, extra, q_fixed: FloatArray, self_spheres, body) -> tuple[ca.Function, FloatArray]:
-    """(z -> the self-clearance rows (``self_clear``), their lower bounds): the same for every segment."""
-    z = ca.SX.sym("z", len(model.group("base")) + len(model.group(manip.group)) + len(extra))
-    rs = RobotSymbols(model, q_fixed, manip.name, z, extra)
-    rows = Rows.empty()
-    self_clear(model, rs.q, list(self_spheres), list(body), rows)
-    return ca.Function("self_rows", [z], [ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)]), np.asarray(rows.lower)
 
 
 def _rows(model, manip, extra, seg: Segment, z: ca.SX, hand, self_rows: tuple[ca.Function, FloatArray]) -> Rows:
@@ -328,12 +319,11 @@ def optimize_paths(
     self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
     body: Sequence[tuple[str, Box]] = (),
     max_iter: int = 200,
-    cache: dict | None = None,
 ) -> PathResult:
     """Optimise every segment's path at once (module docstring). ``hand``: finger spheres (tool frame,
     ``nlp.hand.finger_spheres``); ``self_spheres``/``body``: the self-collision proxy
-    (``nlp.hand.arm_link_spheres``, ``nlp.hand.body_obstacles``), the same in every call given one
-    ``cache`` (a dict the caller keeps: the self-clearance rows are built once there). T >= 3."""
+    (``nlp.hand.arm_link_spheres``, ``nlp.hand.body_obstacles``; their rows are built once per model and
+    arguments, ``nlp.hand.self_rows_function``). T >= 3."""
     if T < 3:
         raise ValueError(f"optimize_paths: T must be at least 3, got {T}")
     t0 = time.perf_counter()
@@ -344,12 +334,7 @@ def optimize_paths(
     idx = np.array([*core, *extra], dtype=int)
     n = len(idx)
     w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
-    key = ("self_rows", extra, np.asarray(segments[0].warm[0], float).tobytes())
-    self_rows = cache.get(key) if cache is not None else None
-    if self_rows is None:
-        self_rows = _self_rows(model, manip, extra, segments[0].warm[0], self_spheres, body)
-        if cache is not None:
-            cache[key] = self_rows
+    self_rows = self_rows_function(model, manip.name, extra, segments[0].warm[0], self_spheres, body)
     blocks = [_block(model, manip, idx, extra, seg, T, hand, self_rows) for seg in segments]
     rows_s = time.perf_counter() - t0
     warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
