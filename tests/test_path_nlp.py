@@ -118,6 +118,29 @@ def test_level3_plan_replays_collision_free(planned):
     assert plan.level3.acc_cost is not None and plan.level3.acc_cost <= plan.level3.warm_acc_cost
 
 
+def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
+    """The NLP's objective (a quadratic form built once) equals the acceleration cost of the paths its
+    variables stand for (numpy, ``_acc_cost``), at random points around the warm start."""
+    model, _, (segments, T, kw, _) = planned
+    manip = model.manipulator(None)
+    idx = np.array([*model.group("base"), *model.group(manip.group)])
+    w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
+    rows = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
+    blocks = [level3._block(model, manip, idx, (), seg, T, kw["hand"], rows) for seg in segments]
+    solver = level3._nlp(model, blocks, idx, w, T, 10)[0]
+    x0 = np.concatenate([b.Zw[1:-1].reshape(-1) for b in blocks])
+    rng = np.random.default_rng(0)
+    for scale in (0.0, 0.1, 1.0):
+        xv = x0 + scale * rng.normal(size=x0.size)
+        want, at = 0.0, 0
+        for b in blocks:
+            inner = xv[at:at + (T - 2) * len(idx)].reshape(T - 2, len(idx))
+            at += inner.size
+            want += level3._acc_cost(np.vstack([b.Zw[0], inner, b.Zw[-1]]).T, w)
+        got = float(solver.get_function("nlp_f")(xv, []))
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-9)
+
+
 def test_level3_jacobian_grows_linearly_with_the_number_of_segments(planned):
     model, _, (segments, T, kw, _) = planned
     seg = segments[0]
