@@ -596,3 +596,50 @@ def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear()
     for _ in range(5):
         zv = rng.uniform(-1.0, 1.0, fn.size1_in(0))
         assert np.allclose(np.asarray(fn(zv)), np.asarray(direct(zv)), atol=1e-12)
+
+
+@pytest.mark.parametrize("robot", ["pr2", "hsr"])
+def test_vectorised_clearance_rows_equal_the_per_sphere_formulas(robot):
+    """``box_clear`` and ``footprint_clear`` (all spheres or circles of a box at once) give, row for row,
+    the values and bounds of the per-sphere formulas they replace, at random configurations and boxes."""
+    from scipy.spatial.transform import Rotation
+
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
+    from rlgp_exec.reach.ik import _smooth_pos, box_sdf
+    from rlgp_exec.scene.geometry import Box
+
+    model = load_robot(robot)
+    rng = np.random.default_rng(7)
+    z = ca.SX.sym("z", len(model.group("base")) + len(model.group(model.manipulator().group)))
+    rs = RobotSymbols(model, model.home(), None, z)
+    boxes = []
+    for i in range(3):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 31))).as_matrix()
+        T[:3, 3] = rng.uniform(-1.0, 1.0, 3)
+        boxes.append(Box(f"b{i}", tuple(rng.uniform(0.05, 0.6, 3)), T, (0, 0, 0, 1)))
+    rects = [(b.T, np.asarray(b.size)) for b in boxes]
+    got, ref = Rows.empty(), Rows.empty()
+    box_clear(rs, boxes, got, margin=0.015)
+    footprint_clear(rs, rects, got, margin=0.02)
+    for b in boxes:  # the per-sphere formulas
+        Tinv = np.linalg.inv(b.T)
+        for (_, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
+            ref.add(box_sdf(ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3]), np.asarray(b.size) / 2), r + 0.015,
+                    ca.inf)
+    c, s = ca.cos(z[2]), ca.sin(z[2])
+    for T, size in rects:
+        R2 = T[:2, :2]
+        for cx, cy, r in rs.circles:
+            wx, wy = z[0] + c * cx - s * cy, z[1] + s * cx + c * cy
+            lx = R2[0, 0] * (wx - T[0, 3]) + R2[1, 0] * (wy - T[1, 3])
+            ly = R2[0, 1] * (wx - T[0, 3]) + R2[1, 1] * (wy - T[1, 3])
+            dx = _smooth_pos(ca.sqrt(lx * lx + 1e-9) - size[0] / 2)
+            dy = _smooth_pos(ca.sqrt(ly * ly + 1e-9) - size[1] / 2)
+            ref.add(ca.sqrt(dx * dx + dy * dy + 1e-9), r + 0.02, ca.inf)
+    assert len(got.g) == len(ref.g) > 0
+    assert got.lower == pytest.approx(ref.lower) and got.upper == ref.upper
+    f = ca.Function("f", [z], [ca.vertcat(*got.g), ca.vertcat(*ref.g)])
+    for _ in range(5):
+        a, b = f(rng.uniform(-2.0, 2.0, z.numel()))
+        assert np.allclose(np.asarray(a), np.asarray(b), atol=1e-12)

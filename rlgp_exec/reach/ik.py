@@ -71,6 +71,15 @@ def box_sdf(p_local: ca.SX, half: np.ndarray) -> ca.SX:
     return _box_sdf_fn()(p_local, ca.DM(np.asarray(half, float).reshape(3)))
 
 
+def box_sdf_columns(R_p: ca.SX, t: np.ndarray, half: np.ndarray) -> ca.SX:
+    """``box_sdf`` of every column of R_p + t (R_p (3, N): points already rotated into the box frame,
+    t (3,) the box frame's offset): (1, N), one mapped call."""
+    n = int(R_p.shape[1])
+    offset = ca.repmat(ca.DM(np.asarray(t, float).reshape(3)), 1, n)
+    halves = ca.repmat(ca.DM(np.asarray(half, float).reshape(3)), 1, n)
+    return _box_sdf_fn().map(n)(R_p + offset, halves)
+
+
 _BOX_SDF: list[ca.Function] = []
 
 

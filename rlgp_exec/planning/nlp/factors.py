@@ -8,12 +8,13 @@ distances (``box_sdf``), so IPOPT sees gradients everywhere.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from rlgp_exec.reach.ik import _smooth_pos, arm_spheres, base_circles, box_sdf
+from rlgp_exec.reach.ik import _smooth_pos, arm_spheres, base_circles, box_sdf, box_sdf_columns
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene.geometry import Box
 
@@ -48,6 +49,15 @@ class Rows:
         self.g.append(g)
         self.lower.append(lower)
         self.upper.append(upper)
+
+    def add_all(self, g: ca.SX, lower: Sequence[float], upper: float) -> None:
+        """One row per element of the vector ``g`` (column-major), each with its lower bound."""
+        parts = ca.vertsplit(ca.vec(g))
+        if len(parts) != len(lower):
+            raise ValueError(f"Rows.add_all: {len(parts)} rows, {len(lower)} lower bounds")
+        self.g += parts
+        self.lower += [float(v) for v in lower]
+        self.upper += [upper] * len(parts)
 
     @classmethod
     def empty(cls) -> Rows:
@@ -84,30 +94,37 @@ class RobotSymbols:
 
 
 def box_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0) -> None:
-    """Every arm sphere at least its radius (+ margin) from every box."""
+    """Every arm sphere at least its radius (+ margin) from every box (per box, all spheres at once:
+    one matrix product and one mapped ``box_sdf``, not a few CasADi calls per sphere)."""
+    if not boxes or not rs.spheres:
+        return
+    centres = ca.horzcat(*(Tk[:3, 3] for Tk in rs.sphere_T))  # (3, S) world
+    lower = [r + margin for _, r in rs.spheres]
     for b in boxes:
         Tinv = np.linalg.inv(b.T)
-        half = np.asarray(b.size) / 2
-        for (_, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
-            pl = ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3])
-            rows.add(box_sdf(pl, half), r + margin, ca.inf)
+        rows.add_all(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ centres, Tinv[:3, 3], np.asarray(b.size) / 2), lower,
+                     ca.inf)
 
 
 def footprint_clear(
     rs: RobotSymbols, rects: list[tuple[FloatArray, FloatArray]], rows: Rows, margin: float = 0.03
 ) -> None:
     """The base circles clear of fixture footprints: rects are (T (4, 4), size (3,)) of fixtures."""
+    if not rects or not rs.circles:
+        return
     z = rs.z
     c, s = ca.cos(z[2]), ca.sin(z[2])
+    circles = np.asarray(rs.circles, float)  # (C, 3): centre x y in the base frame, radius
+    cx, cy = ca.DM(circles[:, 0]), ca.DM(circles[:, 1])
+    wx, wy = z[0] + c * cx - s * cy, z[1] + s * cx + c * cy  # (C,) world, all circles at once
+    lower = [float(r) + margin for r in circles[:, 2]]
     for T, size in rects:
         R2 = T[:2, :2]
-        for cx, cy, r in rs.circles:
-            wx, wy = z[0] + c * cx - s * cy, z[1] + s * cx + c * cy
-            lx = R2[0, 0] * (wx - T[0, 3]) + R2[1, 0] * (wy - T[1, 3])
-            ly = R2[0, 1] * (wx - T[0, 3]) + R2[1, 1] * (wy - T[1, 3])
-            dx = _smooth_pos(ca.sqrt(lx * lx + 1e-9) - size[0] / 2)
-            dy = _smooth_pos(ca.sqrt(ly * ly + 1e-9) - size[1] / 2)
-            rows.add(ca.sqrt(dx * dx + dy * dy + 1e-9), r + margin, ca.inf)
+        lx = R2[0, 0] * (wx - T[0, 3]) + R2[1, 0] * (wy - T[1, 3])
+        ly = R2[0, 1] * (wx - T[0, 3]) + R2[1, 1] * (wy - T[1, 3])
+        dx = _smooth_pos(ca.sqrt(lx * lx + 1e-9) - size[0] / 2)
+        dy = _smooth_pos(ca.sqrt(ly * ly + 1e-9) - size[1] / 2)
+        rows.add_all(ca.sqrt(dx * dx + dy * dy + 1e-9), lower, ca.inf)
 
 
 GRASP_DEPTH = 0.025  # [m] a top grasp's tool point below the object's top (at most half its height)

@@ -25,7 +25,7 @@ import numpy as np
 import pybullet as p
 
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
-from rlgp_exec.reach.ik import arm_spheres, box_sdf
+from rlgp_exec.reach.ik import arm_spheres, box_sdf, box_sdf_columns
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
@@ -142,14 +142,16 @@ def mesh_finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, f
 def points_clear(
     T_tool: ca.SX, spheres: list[tuple[FloatArray, float]], boxes: list[Box], rows: Rows, margin: float = 0.0
 ) -> None:
-    """Every sphere (tool frame) at least its radius (plus ``margin`` [m]) from every box."""
+    """Every sphere (tool frame) at least its radius (plus ``margin`` [m]) from every box (per box, all
+    spheres at once: ``box_sdf_columns``)."""
+    if not boxes or not spheres:
+        return
+    C = ca.DM(np.array([c for c, _ in spheres], float).T)  # (3, S) tool frame
+    pw = T_tool[:3, :3] @ C + ca.repmat(T_tool[:3, 3], 1, len(spheres))  # (3, S) world
+    lower = [r + margin for _, r in spheres]
     for b in boxes:
         Tinv = np.linalg.inv(b.T)
-        half = np.asarray(b.size) / 2
-        for c, r in spheres:
-            pw = T_tool[:3, :3] @ ca.DM(c) + T_tool[:3, 3]
-            pl = ca.DM(Tinv[:3, :3]) @ pw + ca.DM(Tinv[:3, 3])
-            rows.add(box_sdf(pl, half), r + margin, ca.inf)
+        rows.add_all(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ pw, Tinv[:3, 3], np.asarray(b.size) / 2), lower, ca.inf)
 
 
 def points_clear_moving(
