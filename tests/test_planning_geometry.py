@@ -600,7 +600,8 @@ def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear()
 
 @pytest.mark.parametrize("robot", ["pr2", "hsr"])
 def test_vectorised_clearance_rows_equal_the_per_sphere_formulas(robot):
-    """``box_clear`` and ``footprint_clear`` (all spheres or circles of a box at once) give, row for row,
+    """``box_clear`` (with and without the tool's own margin) and ``footprint_clear`` (all spheres or
+    circles of a box at once) give, row for row,
     the values and bounds of the per-sphere formulas they replace, at random configurations and boxes."""
     from scipy.spatial.transform import Rotation
 
@@ -621,11 +622,13 @@ def test_vectorised_clearance_rows_equal_the_per_sphere_formulas(robot):
     rects = [(b.T, np.asarray(b.size)) for b in boxes]
     got, ref = Rows.empty(), Rows.empty()
     box_clear(rs, boxes, got, margin=0.015)
+    box_clear(rs, boxes[:1], got, margin=0.015, tool_margin=0.008)
     footprint_clear(rs, rects, got, margin=0.02)
-    for b in boxes:  # the per-sphere formulas
+    for b, tool_margin in [*((b, 0.015) for b in boxes), (boxes[0], 0.008)]:  # the per-sphere formulas
         Tinv = np.linalg.inv(b.T)
-        for (_, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
-            ref.add(box_sdf(ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3]), np.asarray(b.size) / 2), r + 0.015,
+        for (frame, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
+            margin = tool_margin if frame == rs.manip.tool_frame else 0.015
+            ref.add(box_sdf(ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3]), np.asarray(b.size) / 2), r + margin,
                     ca.inf)
     c, s = ca.cos(z[2]), ca.sin(z[2])
     for T, size in rects:

@@ -93,13 +93,17 @@ class RobotSymbols:
         return self.T_tool[:3, :3] @ ca.DM(axis)
 
 
-def box_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0) -> None:
-    """Every arm sphere at least its radius (+ margin) from every box (per box, all spheres at once:
-    one matrix product and one mapped ``box_sdf``, not a few CasADi calls per sphere)."""
+def box_clear(
+    rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0, tool_margin: float | None = None
+) -> None:
+    """Every arm sphere at least its radius (+ margin; the tool frame's sphere + ``tool_margin`` if given)
+    from every box (per box, all spheres at once: one matrix product and one mapped ``box_sdf``, not a
+    few CasADi calls per sphere)."""
     if not boxes or not rs.spheres:
         return
     centres = ca.horzcat(*(Tk[:3, 3] for Tk in rs.sphere_T))  # (3, S) world
-    lower = [r + margin for _, r in rs.spheres]
+    tool = rs.manip.tool_frame
+    lower = [r + (tool_margin if tool_margin is not None and f == tool else margin) for f, r in rs.spheres]
     for b in boxes:
         Tinv = np.linalg.inv(b.T)
         rows.add_all(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ centres, Tinv[:3, 3], np.asarray(b.size) / 2), lower,

@@ -313,13 +313,7 @@ def _objects_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, tool_margin: 
     grasp of a 5 cm block 7.5 cm from another has (pick_place_pr2 seed 3 missed it by 0.3 mm), while
     the real fingers (meshes, checked in PyBullet at the keyframe and in the replay) fit between them;
     a pick passes HAND_MARGIN, the open hand's margin."""
-    tool = rs.manip.tool_frame
-    for b in boxes:
-        Tinv = np.linalg.inv(b.T)
-        half = np.asarray(b.size) / 2
-        for (frame, r), Tk in zip(rs.spheres, rs.sphere_T, strict=True):
-            pl = ca.DM(Tinv[:3, :3]) @ Tk[:3, 3] + ca.DM(Tinv[:3, 3])
-            rows.add(box_sdf(pl, half), r + (tool_margin if frame == tool else ARM_MARGIN), ca.inf)
+    box_clear(rs, boxes, rows, margin=ARM_MARGIN, tool_margin=tool_margin)
 
 
 def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
