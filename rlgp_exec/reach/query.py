@@ -156,7 +156,7 @@ class ReachabilityPlanner:
         q = self.g.Q[i] + 0.5 * self.g.limits.difference(self.g.Q[j], self.g.Q[i])
         checked = self.g.G.edges[i, j]["checked"]
         if checker.attached is None and not checker.world_changed:
-            if checked or checker.distance(q, part="fixed") >= checker.clearance:
+            if checked or checker.distance(q, "fixed", checker.clearance) >= checker.clearance:
                 return True
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
@@ -165,11 +165,11 @@ class ReachabilityPlanner:
         if key in self._carry_verdicts:
             return self._carry_verdicts[key]
         closed = all(d == 0.0 for d in checker.openings.values())
-        if not checked and closed and checker.distance(q, part="fixed") < checker.clearance:
+        if not checked and closed and checker.distance(q, "fixed", checker.clearance) < checker.clearance:
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
             return False
-        if checker.distance(q, part="changed" if (checked or closed) else "all") < checker.clearance:
+        if checker.distance(q, "changed" if (checked or closed) else "all", checker.clearance) < checker.clearance:
             self._carry_verdicts[key] = False
             return False
         return True
