@@ -407,9 +407,12 @@ def _eager_sweep(checker, q1, q2, part):
 
 
 def test_the_lazy_sweep_gives_the_verdicts_of_one_measuring_every_link(wall):
-    """``edge_collides`` re-measures only the links that limit its next step: against a sweep that
-    measures every link at every sample (self-collision aside), the same verdicts on edges round the
-    wall, with objects standing and one held; a free edge keeps the clearance at 200 samples."""
+    """``edge_collides`` re-measures only the links that limit its next step (and moves the obstacles
+    rather than the base): against a sweep that measures every link at every sample (self-collision
+    aside), the same verdicts on edges round the wall, with objects standing and one held; a free edge
+    keeps the clearance at 200 samples."""
+    import pybullet as p
+
     from rlgp_exec.scene.geometry import object_box
 
     scene, model, graph, _, checker, _ = wall
@@ -429,6 +432,7 @@ def test_the_lazy_sweep_gives_the_verdicts_of_one_measuring_every_link(wall):
         boxes.append(replace(box, T=T))
     try:
         checker.set_objects(boxes)
+        homes = [p.getBasePositionAndOrientation(b, physicsClientId=checker.client) for b in checker.bodies]
         for held in (False, True):
             if held:
                 checker.attach(np.array([0.05, 0.05, 0.08]), np.array(
@@ -445,6 +449,8 @@ def test_the_lazy_sweep_gives_the_verdicts_of_one_measuring_every_link(wall):
                     assert _eager_sweep(checker, q1, q2, "all")
                 verdicts.append(whole)
             assert any(verdicts) and not all(verdicts)
+        # a sweep that moves the base moves the obstacles instead, and puts them back
+        assert [p.getBasePositionAndOrientation(b, physicsClientId=checker.client) for b in checker.bodies] == homes
     finally:
         checker.detach()
         checker.set_objects([])
