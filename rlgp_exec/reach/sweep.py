@@ -169,11 +169,13 @@ def _advance(
             first = False
         else:
             # expired, or certified too close; then the stale ones below the smallest fresh horizon
-            todo = np.flatnonzero(horizon < s + tol * (s < 1.0)).tolist()
+            todo = np.flatnonzero(horizon < (s + tol if s < 1.0 else s)).tolist()
             fresh_min = h_min = np.inf
+            rest, too_close = 1.0 - s, c + margin
             while todo:
                 for e in todo:
-                    upto = min(LOOKAHEAD, max(lo_upto, c + (1.0 - s) * bound_of[e]))
+                    upto = c + rest * bound_of[e]
+                    upto = LOOKAHEAD if upto > LOOKAHEAD else (lo_upto if upto < lo_upto else upto)
                     b = body_of[e]
                     if obstacles.at.get(b, s) != s:
                         obstacles.place(b, s)
@@ -188,15 +190,18 @@ def _advance(
                         pts = p.getClosestPoints(held_body, b, upto, physicsClientId=client)
                     d = upto
                     for pt in pts:
-                        d = min(d, pt[8])
-                    if d < c + margin:
+                        if pt[8] < d:
+                            d = pt[8]
+                    if d < too_close:
                         return True
                     h = s + (d - c) * per_m_of[e]
                     horizon[e] = h
-                    fresh_min = min(fresh_min, h)
+                    if h < fresh_min:
+                        fresh_min = h
                 h_min = float(horizon.min())
                 todo = np.flatnonzero(horizon < fresh_min).tolist() if h_min < fresh_min else []
-            h_min = float(horizon.min(initial=np.inf))
+            if fresh_min == np.inf:  # nothing measured (s bumped past every horizon's start)
+                h_min = float(horizon.min(initial=np.inf))
         if n_self and (s - last_self >= 1.0 / n_self or s >= 1.0):
             if ch.self_collision(q):
                 return True
