@@ -19,6 +19,7 @@ import itertools
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import networkx as nx
@@ -188,6 +189,15 @@ class ReachabilityPlanner:
         if self._carry_verdicts.get((min(u, v), max(u, v))) is False:
             return None  # hidden for this carrying query
         return d["weight"]
+
+    def _search_weight(self) -> str | Callable[[int, int, dict], float | None]:
+        """``_weight`` for one shortest-path search, made cheap to call per edge: the attribute name
+        when no edge is hidden, else a look-up in the hidden edges (both directions)."""
+        hidden = [k for k, ok in self._carry_verdicts.items() if ok is False]
+        if not hidden:
+            return "weight"
+        both = {*hidden, *((v, u) for u, v in hidden)}
+        return lambda u, v, d: None if (u, v) in both else d["weight"]
 
     def drawers(self, openings: dict[str, float]) -> None:
         """Plan the next queries with the drawers at ``openings`` [m]: while one is out, edge verdicts
@@ -414,7 +424,7 @@ class ReachabilityPlanner:
             if swept >= MAX_REPLANS:
                 break
             try:
-                nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
+                nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._search_weight())
             except nx.NetworkXNoPath:
                 bridges += 1
                 if bridges > MAX_BRIDGES or not self._bridge(a, b):
