@@ -454,3 +454,22 @@ def test_the_lazy_sweep_gives_the_verdicts_of_one_measuring_every_link(wall):
     finally:
         checker.detach()
         checker.set_objects([])
+
+
+def test_a_held_box_is_made_once_per_size_and_parked_while_not_held(wall):
+    """Attaching reuses the box made for that size; a parked box changes no distance or verdict."""
+    _scene, _model, graph, _, checker, _ = wall
+    q1, q2 = graph.Q[graph.alive[3]], graph.Q[graph.alive[17]]
+    before = (checker.distance(q1), checker.edge_collides(q1, q2))
+    T = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.04], [0, 0, 0, 1.0]])
+    try:
+        checker.attach(np.array([0.05, 0.05, 0.08]), T)
+        first = checker.attached[0]
+        checker.attach(np.array([0.04, 0.04, 0.1]), T)
+        other = checker.attached[0]
+        checker.attach(np.array([0.05, 0.05, 0.08]), T)
+        assert checker.attached[0] == first != other
+    finally:
+        checker.detach()
+    assert checker.attached is None
+    assert (checker.distance(q1), checker.edge_collides(q1, q2)) == before

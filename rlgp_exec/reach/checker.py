@@ -108,6 +108,7 @@ class WorldChecker:
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
+        self._held_boxes: dict[tuple[float, ...], tuple[int, list[float]]] = {}  # half extents -> (body, park)
         # the drawers as they are in this world (a replan's start may have one out; the graph's verdicts
         # hold for them closed)
         self.openings = {name: self.world.drawer_opening(name) for name in self.world.cabinets}
@@ -160,20 +161,28 @@ class WorldChecker:
         self.knob = None if cabinet is None else self.world.cabinets[cabinet].body
 
     def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
-        """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame."""
+        """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame. A box
+        of each size is made once (with its collision filters against every robot link) and parked
+        below the world, 2 m apart, while not held."""
         self.detach()
         half = [float(v) / 2 for v in size]
-        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
-        body = p.createMultiBody(0.0, col, -1, [0, 0, -10], physicsClientId=self.client)
-        p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
-        for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
-            p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+        key = tuple(half)
+        if key not in self._held_boxes:
+            park = [0.0, 0.0, -10.0 - 2.0 * len(self._held_boxes)]
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
+            body = p.createMultiBody(0.0, col, -1, park, physicsClientId=self.client)
+            p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
+            for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
+                p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+            self._held_boxes[key] = (body, park)
         extra = float(np.linalg.norm(T_tool_obj[:3, 3]) + np.linalg.norm(half))
-        self.attached = (body, np.asarray(T_tool_obj, float), extra)
+        self.attached = (self._held_boxes[key][0], np.asarray(T_tool_obj, float), extra)
 
     def detach(self) -> None:
         if self.attached is not None:
-            p.removeBody(self.attached[0], physicsClientId=self.client)
+            body = self.attached[0]
+            park = next(pk for b, pk in self._held_boxes.values() if b == body)
+            p.resetBasePositionAndOrientation(body, park, [0.0, 0.0, 0.0, 1.0], physicsClientId=self.client)
             self.attached = None
 
     def _pairs(self, part: Part) -> list[tuple[int, int]]:
