@@ -28,7 +28,7 @@ from typing import Literal
 import numpy as np
 import pybullet as p
 
-from rlgp_exec.reach.sweep import LOOKAHEAD, sweep
+from rlgp_exec.reach.sweep import LOOKAHEAD, planar_base, sweep
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.robot.pybullet_body import quat_xyzw
 from rlgp_exec.scene import Scene
@@ -129,6 +129,7 @@ class WorldChecker:
         self.row_entry = np.full(self._moved_by.shape[0], -1, dtype=int)
         self.row_entry[self.shaped_rows] = np.arange(self.shaped_rows.size)
         self.finger_links = frozenset(self._fingers)
+        self.planar_base = planar_base(self.robot.id, self.client, self.model.joint_names)
 
     @property
     def world_changed(self) -> bool:

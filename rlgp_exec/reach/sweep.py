@@ -35,10 +35,27 @@ from rlgp_exec.robot.model import FloatArray
 if TYPE_CHECKING:
     from rlgp_exec.reach.checker import WorldChecker
 
-__all__ = ["sweep"]
+__all__ = ["planar_base", "sweep"]
 
 LOOKAHEAD = 0.5  # [m] distances are measured up to this far (the checker's)
 MIN_ADVANCE = 1e-3  # [m] closer than the clearance + this (before the end) counts as a collision
+
+
+def planar_base(body: int, client: int, names: tuple[str, ...] | list[str]) -> bool:
+    """True when q's first three joints move the robot as the planar pose (x, y, yaw) in the world frame
+    (root at the world's origin, z up; PyBullet's first three joints q's, along world x, y and about z,
+    their frames not offset): ``sweep`` then moves the obstacles instead of the base."""
+    pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=client)
+    if not (np.allclose(pos[:2], 0.0, atol=1e-12) and np.allclose(orn, [0, 0, 0, 1], atol=1e-12)):
+        return False
+    for i, (kind, axis) in enumerate(((p.JOINT_PRISMATIC, (1, 0, 0)), (p.JOINT_PRISMATIC, (0, 1, 0)),
+                                      (p.JOINT_REVOLUTE, (0, 0, 1)))):
+        info = p.getJointInfo(body, i, physicsClientId=client)
+        same = info[1].decode() == names[i] and info[2] == kind and np.allclose(info[13], axis, atol=1e-12)
+        unmoved = np.allclose(info[14][:2], 0.0, atol=1e-12) and np.allclose(info[15], [0, 0, 0, 1], atol=1e-12)
+        if not (same and unmoved):
+            return False
+    return True
 
 
 class _Obstacles:
@@ -46,9 +63,11 @@ class _Obstacles:
     its base held at q1's pose, sees them as it would with its base at the sample's (world frame: z up,
     the base a planar x, y, yaw pose)."""
 
-    def __init__(self, client: int, bodies: list[int], q1: FloatArray, dq: FloatArray) -> None:
+    def __init__(self, client: int, bodies: list[int], q1: FloatArray, dq: FloatArray, planar: bool) -> None:
+        """``planar``: q's first three joints are the base's world pose (``WorldChecker.planar_base``);
+        otherwise (or when the edge does not move the base) nothing is moved."""
         self.client = client
-        self.active = bool(np.any(dq[:3] != 0.0))
+        self.active = planar and bool(np.any(dq[:3] != 0.0))
         self.x1, self.y1 = float(q1[0]), float(q1[1])
         self.q1, self.dq = q1, dq
         self.home = {b: p.getBasePositionAndOrientation(b, physicsClientId=client) for b in bodies if self.active}
@@ -108,7 +127,7 @@ def sweep(
         per_m = np.where(moving, 1.0 / np.where(moving, bound, 1.0), np.inf)  # [s per m]
     tol = np.where(moving, MIN_ADVANCE * np.where(moving, per_m, 0.0), 0.0)  # [s] MIN_ADVANCE per entry
     fingers = np.isin(rows - 1, list(ch.finger_links))
-    obstacles = _Obstacles(ch.client, list(dict.fromkeys(robot_obst + held_obst)), q1, dq)
+    obstacles = _Obstacles(ch.client, list(dict.fromkeys(robot_obst + held_obst)), q1, dq, ch.planar_base)
     try:
         return _advance(ch, obstacles, robot_obst, held_obst, bound, per_m, tol, fingers, n_self)
     finally:
