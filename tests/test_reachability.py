@@ -372,3 +372,104 @@ def test_ik_tolerance_gives_the_verdicts_of_a_tighter_one(scene_file):
         assert a.ok == b.ok, (x, a.reason, b.reason)
         if a.ok:
             assert np.linalg.norm(model.fk(a.q, tool)[:3, 3] - x) <= POS_TOL
+
+
+def _eager_sweep(checker, q1, q2, part):
+    """The reference sweep: every link (and the held object) measured at every sample, the next sample
+    where the first of them could have moved its distance less the clearance (no self-collision)."""
+    import pybullet as p
+
+    from rlgp_exec.reach.sweep import LOOKAHEAD, MIN_ADVANCE
+
+    pairs = checker._pairs(part)
+    dq = checker.model.limits.difference(q2, q1)
+    links_bound, held_bound = checker._bounds(dq, part, q1)
+    robot, c, s = checker.robot.id, checker.clearance, 0.0
+    while True:
+        q = q1 + s * dq
+        checker._place(q, pairs)
+        links, held = np.full(links_bound.shape, LOOKAHEAD), LOOKAHEAD
+        for a, b in pairs:
+            for pt in p.getClosestPoints(a, b, LOOKAHEAD, physicsClientId=checker.client):
+                if a != robot:
+                    held = min(held, pt[8])
+                elif not (b == checker.knob and pt[3] in checker.finger_links and pt[4] == 0):
+                    links[pt[3] + 1] = min(links[pt[3] + 1], pt[8])
+        if min(links.min(), held) < c + MIN_ADVANCE * (s < 1.0):
+            return True
+        if s >= 1.0:
+            return False
+        with np.errstate(divide="ignore"):
+            step = float(np.where(links_bound > 0, (links - c) / links_bound, np.inf).min())
+        if held_bound > 0:
+            step = min(step, (held - c) / held_bound)
+        s = min(1.0, s + max(step, 1e-6))
+
+
+def test_the_lazy_sweep_gives_the_verdicts_of_one_measuring_every_link(wall):
+    """``edge_collides`` re-measures only the links that limit its next step (and moves the obstacles
+    rather than the base): against a sweep that measures every link at every sample (self-collision
+    aside), the same verdicts on edges round the wall, with objects standing and one held; a free edge
+    keeps the clearance at 200 samples."""
+    import pybullet as p
+
+    from rlgp_exec.scene.geometry import object_box
+
+    scene, model, graph, _, checker, _ = wall
+    rng = np.random.default_rng(7)
+    box = object_box(scene.objects[0])
+    nodes = list(graph.alive)
+    edges = [(graph.Q[i], graph.Q[j]) for i, j in list(graph.G.edges)[:25]]
+    for _ in range(25):  # short random motions from nodes, some into the wall or the objects
+        q = graph.Q[nodes[rng.integers(len(nodes))]]
+        step = rng.normal(0.0, 0.3, q.size) * (graph.limits.upper > graph.limits.lower)
+        edges.append((q, graph.limits.wrap(q + step)))
+    tool = model.manipulator().tool_frame
+    boxes = []  # objects where the hand passes a third of the way along some of the edges
+    for q1, q2 in edges[::5]:
+        T = np.eye(4)
+        T[:3, 3] = model.fk(q1 + model.limits.difference(q2, q1) / 3, tool)[:3, 3] + [0.0, 0.0, 0.05]
+        boxes.append(replace(box, T=T))
+    try:
+        checker.set_objects(boxes)
+        homes = [p.getBasePositionAndOrientation(b, physicsClientId=checker.client) for b in checker.bodies]
+        for held in (False, True):
+            if held:
+                checker.attach(np.array([0.05, 0.05, 0.08]), np.array(
+                    [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.04], [0, 0, 0, 1.0]]))
+            verdicts = []
+            for q1, q2 in edges:
+                lazy = checker.edge_collides(q1, q2, part="changed")
+                assert lazy == _eager_sweep(checker, q1, q2, "changed")
+                whole = checker.edge_collides(q1, q2)
+                if not whole:
+                    dq = model.limits.difference(q2, q1)
+                    assert all(checker.distance(q1 + s * dq) >= checker.clearance for s in np.linspace(0, 1, 200))
+                elif not checker.edge_collides(q1, q2, part="fixed"):
+                    assert _eager_sweep(checker, q1, q2, "all")
+                verdicts.append(whole)
+            assert any(verdicts) and not all(verdicts)
+        # a sweep that moves the base moves the obstacles instead, and puts them back
+        assert [p.getBasePositionAndOrientation(b, physicsClientId=checker.client) for b in checker.bodies] == homes
+    finally:
+        checker.detach()
+        checker.set_objects([])
+
+
+def test_a_held_box_is_made_once_per_size_and_parked_while_not_held(wall):
+    """Attaching reuses the box made for that size; a parked box changes no distance or verdict."""
+    _scene, _model, graph, _, checker, _ = wall
+    q1, q2 = graph.Q[graph.alive[3]], graph.Q[graph.alive[17]]
+    before = (checker.distance(q1), checker.edge_collides(q1, q2))
+    T = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.04], [0, 0, 0, 1.0]])
+    try:
+        checker.attach(np.array([0.05, 0.05, 0.08]), T)
+        first = checker.attached[0]
+        checker.attach(np.array([0.04, 0.04, 0.1]), T)
+        other = checker.attached[0]
+        checker.attach(np.array([0.05, 0.05, 0.08]), T)
+        assert checker.attached[0] == first != other
+    finally:
+        checker.detach()
+    assert checker.attached is None
+    assert (checker.distance(q1), checker.edge_collides(q1, q2)) == before

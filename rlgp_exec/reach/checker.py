@@ -2,7 +2,7 @@
 
 A configuration is valid when the robot keeps ``CLEARANCE`` from every fixture and its links do not
 penetrate each other. An edge (a straight line in configuration space) is checked by *conservative
-advancement*: at each sample each robot link's distance d to the fixtures is measured, and the next
+advancement* (``sweep``): at each sample a robot link's distance d to the fixtures is known, and the next
 sample is placed where no point of any link can have moved more than its d - CLEARANCE. The bound on
 how far a link's point moves sums, over the joints that move that link, a radius per joint (1 m per
 metre of a prismatic joint; the base's translation by its length; the robot's reach for the base
@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.reach.sweep import LOOKAHEAD, planar_base, sweep
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.robot.pybullet_body import quat_xyzw
 from rlgp_exec.scene import Scene
@@ -40,9 +41,6 @@ Part = Literal["all", "fixed", "changed"]
 CLEARANCE = 0.005  # [m] between the robot and the fixtures at every checked configuration
 SELF_TOLERANCE = 1e-3  # [m] penetration allowed between robot links (touching neighbours)
 SELF_STEP = 0.02  # [rad or m] of arm motion between self-collision samples along an edge
-LOOKAHEAD = 0.5  # [m] distances are measured up to this far
-MIN_ADVANCE = 1e-3  # [m] smallest advance: closer than CLEARANCE + this counts as a collision
-FAR = 0.2  # [m] an obstacle measured 2 FAR away is not measured again along an edge while it stays FAR away
 
 
 def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
@@ -110,6 +108,7 @@ class WorldChecker:
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
+        self._held_boxes: dict[tuple[float, ...], tuple[int, list[float]]] = {}  # half extents -> (body, park)
         # the drawers as they are in this world (a replan's start may have one out; the graph's verdicts
         # hold for them closed)
         self.openings = {name: self.world.drawer_opening(name) for name in self.world.cabinets}
@@ -124,6 +123,13 @@ class WorldChecker:
         self._others[[0, 1, 2, *vertical_lifts(self.robot.id, self.client, self.model.joint_names)]] = False
         self._shaped = np.array([i for i in range(p.getNumJoints(self.robot.id, physicsClientId=self.client))
                                  if p.getCollisionShapeData(self.robot.id, i, physicsClientId=self.client)], dtype=int)
+        # the sweep's rows (PyBullet link index + 1) of the links with collision shapes, and row -> entry
+        root = p.getCollisionShapeData(self.robot.id, -1, physicsClientId=self.client)
+        self.shaped_rows = np.concatenate([[0] if root else [], self._shaped + 1]).astype(int)
+        self.row_entry = np.full(self._moved_by.shape[0], -1, dtype=int)
+        self.row_entry[self.shaped_rows] = np.arange(self.shaped_rows.size)
+        self.finger_links = frozenset(self._fingers)
+        self.planar_base = planar_base(self.robot.id, self.client, self.model.joint_names)
 
     @property
     def world_changed(self) -> bool:
@@ -156,20 +162,28 @@ class WorldChecker:
         self.knob = None if cabinet is None else self.world.cabinets[cabinet].body
 
     def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
-        """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame."""
+        """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame. A box
+        of each size is made once (with its collision filters against every robot link) and parked
+        below the world, 2 m apart, while not held."""
         self.detach()
         half = [float(v) / 2 for v in size]
-        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
-        body = p.createMultiBody(0.0, col, -1, [0, 0, -10], physicsClientId=self.client)
-        p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
-        for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
-            p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+        key = tuple(half)
+        if key not in self._held_boxes:
+            park = [0.0, 0.0, -10.0 - 2.0 * len(self._held_boxes)]
+            col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
+            body = p.createMultiBody(0.0, col, -1, park, physicsClientId=self.client)
+            p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
+            for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
+                p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+            self._held_boxes[key] = (body, park)
         extra = float(np.linalg.norm(T_tool_obj[:3, 3]) + np.linalg.norm(half))
-        self.attached = (body, np.asarray(T_tool_obj, float), extra)
+        self.attached = (self._held_boxes[key][0], np.asarray(T_tool_obj, float), extra)
 
     def detach(self) -> None:
         if self.attached is not None:
-            p.removeBody(self.attached[0], physicsClientId=self.client)
+            body = self.attached[0]
+            park = next(pk for b, pk in self._held_boxes.values() if b == body)
+            p.resetBasePositionAndOrientation(body, park, [0.0, 0.0, 0.0, 1.0], physicsClientId=self.client)
             self.attached = None
 
     def _pairs(self, part: Part) -> list[tuple[int, int]]:
@@ -188,57 +202,28 @@ class WorldChecker:
             pairs += [(self.attached[0], b) for b in self.bodies]
         return pairs
 
-    def distance(self, q: FloatArray, part: Part = "all") -> float:
-        """Smallest distance [m] from the robot (and a held object) to the fixtures and obstacles (capped
-        at LOOKAHEAD); ``part`` restricts the pairs measured (module docstring)."""
-        return self._distance(q, self._pairs(part))
+    def distance(self, q: FloatArray, part: Part = "all", upto: float = LOOKAHEAD) -> float:
+        """Smallest distance [m] from the robot (and a held object) to the fixtures and obstacles, capped
+        at ``upto`` [m] (PyBullet measures only that far: a caller asking whether the distance is below a
+        threshold passes it); ``part`` restricts the pairs measured (module docstring)."""
+        return self._distance(q, self._pairs(part), upto)
 
     def _place(self, q: FloatArray, pairs: list[tuple[int, int]]) -> None:
         """The robot at q, and the held object in its hand if ``pairs`` measure it."""
         self.robot.set_q(q, only_changed=True)
         if self.attached is not None and any(a == self.attached[0] for a, _ in pairs):
-            body, T_to, _ = self.attached
-            T = self.model.fk(q, self.tool) @ T_to
-            p.resetBasePositionAndOrientation(
-                body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client
-            )
+            self.place_held(q)
 
-    def _link_distances(
-        self, q: FloatArray, pairs: list[tuple[int, int]], far: dict[int, tuple[float, float]], moved: float
-    ) -> tuple[FloatArray, float]:
-        """(per robot link (PyBullet index + 1), the held object) smallest distances [m] to the pairs'
-        obstacles at q, each capped at LOOKAHEAD (``_distance`` per link), or lower bounds of them.
-        ``far`` (pair index -> (its distance when measured, ``moved`` then)) holds the pairs measured at
-        least 2 FAR apart; ``moved`` [m] bounds how far any point has moved since the sweep began. A
-        pair whose distance less what has moved since is still FAR or more is not measured: that
-        lower bound stands for it (for every link)."""
-        self._place(q, pairs)
-        links = np.full(self._moved_by.shape[0], LOOKAHEAD)
-        held = LOOKAHEAD
-        robot = self.robot.id
-        for k, (a, b) in enumerate(pairs):
-            if k in far:
-                bound = far[k][0] - (moved - far[k][1])
-                if bound >= FAR:
-                    links, held = (links, min(held, bound)) if a != robot else (np.minimum(links, bound), held)
-                    continue
-                del far[k]
-            d = LOOKAHEAD
-            for c in p.getClosestPoints(a, b, LOOKAHEAD, physicsClientId=self.client):
-                if a != robot:
-                    held = min(held, float(c[8]))
-                elif not (b == self.knob and c[3] in self._fingers and c[4] == 0):  # (fingers round the knob)
-                    links[c[3] + 1] = min(links[c[3] + 1], float(c[8]))
-                else:
-                    continue
-                d = min(d, float(c[8]))
-            if d >= 2 * FAR:
-                far[k] = (d, moved)
-        return links, held
+    def place_held(self, q: FloatArray) -> None:
+        """The held object (there must be one) where the hand holds it at q."""
+        assert self.attached is not None
+        body, T_to, _ = self.attached
+        T = self.model.fk(q, self.tool) @ T_to
+        p.resetBasePositionAndOrientation(body, T[:3, 3].tolist(), quat_xyzw(T[:3, :3]), physicsClientId=self.client)
 
-    def _distance(self, q: FloatArray, pairs: list[tuple[int, int]]) -> float:
+    def _distance(self, q: FloatArray, pairs: list[tuple[int, int]], upto: float = LOOKAHEAD) -> float:
         self._place(q, pairs)
-        d = LOOKAHEAD
+        d = upto
         robot = self.robot.id
         for a, b in pairs:
             for c in p.getClosestPoints(a, b, d, physicsClientId=self.client):
@@ -257,13 +242,13 @@ class WorldChecker:
 
     def __call__(self, q: FloatArray) -> bool:
         self.calls += 1
-        return self.distance(q) < self.clearance or self.self_collision(q)
+        return self.distance(q, upto=self.clearance) < self.clearance or self.self_collision(q)
 
     def penetrates(self, q: FloatArray) -> bool:
         """True when q penetrates a fixture or itself (no clearance asked: a grasp may touch the table's
         air gap; the graph's own nodes and edges keep CLEARANCE)."""
         self.calls += 1
-        return self.distance(q) < 0.0 or self.self_collision(q)
+        return self.distance(q, upto=self.clearance) < 0.0 or self.self_collision(q)
 
     def edge_collides(self, q1: FloatArray, q2: FloatArray, part: Part = "all") -> bool:
         """True when the straight motion q1 -> q2 (yaw the short way) comes within CLEARANCE of a
@@ -279,33 +264,12 @@ class WorldChecker:
         # the middle first: closer than the clearance there, the sweep below would stop there too (it
         # cannot step past a configuration that close), so the answer is the same without the sweep
         self.calls += 1
-        if self._distance(q1 + 0.5 * dq, pairs) < self.clearance:
+        if self._distance(q1 + 0.5 * dq, pairs, self.clearance) < self.clearance:
             return True
-        s, last_self = 0.0, -1.0
-        fastest = max(float(links_bound.max()), held_bound)  # [m] of motion of any point over the edge
-        far: dict[int, tuple[float, float]] = {}
-        while True:
-            q = q1 + s * dq
-            self.calls += 1
-            links, held = self._link_distances(q, pairs, far, s * fastest)
-            if min(float(links.min()), held) < self.clearance + MIN_ADVANCE * (s < 1.0):
-                return True
-            if n_self and (s - last_self >= 1.0 / n_self or s >= 1.0):
-                if self.self_collision(q):
-                    return True
-                last_self = s
-            if s >= 1.0:
-                return False
-            # each link (and the held object) may advance until it could have moved its own clearance
-            with np.errstate(divide="ignore"):
-                steps = np.where(links_bound > 0, (links - self.clearance) / links_bound, np.inf)
-            step = float(steps.min())
-            if held_bound > 0:
-                step = min(step, (held - self.clearance) / held_bound)
-            s = min(1.0, s + max(step, 1e-6))
+        return sweep(self, q1, dq, pairs, links_bound, held_bound, n_self)
 
     def _body_yaw_radii(self, q: FloatArray, dq: FloatArray) -> FloatArray:
-        """(rows as ``_link_distances``) for an edge from q by dq: each body link's (one that only the
+        """(rows: PyBullet link index + 1) for an edge from q by dq: each body link's (one that only the
         base and vertical lifts move, rigid relative to the base's vertical axis) farthest distance
         [m] from that axis (its bounding box's corners at q); the robot's reach for the other links."""
         radii = np.full(self._moved_by.shape[0], self.radii[2])
@@ -320,7 +284,7 @@ class WorldChecker:
         return radii
 
     def _bounds(self, dq: FloatArray, part: Part, q1: FloatArray | None = None) -> tuple[FloatArray, float]:
-        """How far [m] any point of each robot link (rows as ``_link_distances``) and of the held object
+        """How far [m] any point of each robot link (rows: PyBullet link index + 1) and of the held object
         can move over an edge of joint motion dq: the base's translation |(dx, dy)| plus, for each
         other joint that moves the link, |dq_j| times that joint's radius (the yaw's, for a body link,
         its distance from the base's axis at q1 when given); the held object's as the tool link's

@@ -93,7 +93,7 @@ def plan_ompl(
     def valid(s) -> bool:
         # three times the graph's clearance: OMPL's sampled motions then pass the exact edge check
         q = full(s)
-        return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
+        return checker.distance(q, upto=OMPL_CLEARANCE) >= OMPL_CLEARANCE and not checker.self_collision(q)
 
     s1, s2 = _nudged(checker, q1, idx, lo, hi), _nudged(checker, q2, idx, lo, hi)
     if s1 is None or s2 is None:  # OMPL would spend its whole timeout on it
@@ -209,4 +209,4 @@ def _nudged(checker: WorldChecker, q: FloatArray, idx: FloatArray, lo: FloatArra
 
 def valid_q(checker: WorldChecker, q: FloatArray) -> bool:
     """OMPL's validity of a whole configuration: OMPL_CLEARANCE from the fixtures, no self-collision."""
-    return checker.distance(q) >= OMPL_CLEARANCE and not checker.self_collision(q)
+    return checker.distance(q, upto=OMPL_CLEARANCE) >= OMPL_CLEARANCE and not checker.self_collision(q)

@@ -19,6 +19,7 @@ import itertools
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import networkx as nx
@@ -156,7 +157,7 @@ class ReachabilityPlanner:
         q = self.g.Q[i] + 0.5 * self.g.limits.difference(self.g.Q[j], self.g.Q[i])
         checked = self.g.G.edges[i, j]["checked"]
         if checker.attached is None and not checker.world_changed:
-            if checked or checker.distance(q, part="fixed") >= checker.clearance:
+            if checked or checker.distance(q, "fixed", checker.clearance) >= checker.clearance:
                 return True
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
@@ -165,11 +166,11 @@ class ReachabilityPlanner:
         if key in self._carry_verdicts:
             return self._carry_verdicts[key]
         closed = all(d == 0.0 for d in checker.openings.values())
-        if not checked and closed and checker.distance(q, part="fixed") < checker.clearance:
+        if not checked and closed and checker.distance(q, "fixed", checker.clearance) < checker.clearance:
             self.g.G.remove_edge(i, j)
             self.counters["edges_removed"] += 1
             return False
-        if checker.distance(q, part="changed" if (checked or closed) else "all") < checker.clearance:
+        if checker.distance(q, "changed" if (checked or closed) else "all", checker.clearance) < checker.clearance:
             self._carry_verdicts[key] = False
             return False
         return True
@@ -188,6 +189,15 @@ class ReachabilityPlanner:
         if self._carry_verdicts.get((min(u, v), max(u, v))) is False:
             return None  # hidden for this carrying query
         return d["weight"]
+
+    def _search_weight(self) -> str | Callable[[int, int, dict], float | None]:
+        """``_weight`` for one shortest-path search, made cheap to call per edge: the attribute name
+        when no edge is hidden, else a look-up in the hidden edges (both directions)."""
+        hidden = [k for k, ok in self._carry_verdicts.items() if ok is False]
+        if not hidden:
+            return "weight"
+        both = {*hidden, *((v, u) for u, v in hidden)}
+        return lambda u, v, d: None if (u, v) in both else d["weight"]
 
     def drawers(self, openings: dict[str, float]) -> None:
         """Plan the next queries with the drawers at ``openings`` [m]: while one is out, edge verdicts
@@ -414,7 +424,7 @@ class ReachabilityPlanner:
             if swept >= MAX_REPLANS:
                 break
             try:
-                nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._weight)
+                nodes = nx.dijkstra_path(self.g.G, a, b, weight=self._search_weight())
             except nx.NetworkXNoPath:
                 bridges += 1
                 if bridges > MAX_BRIDGES or not self._bridge(a, b):
