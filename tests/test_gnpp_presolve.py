@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.geometry import LIFT, FactorLib
 from rlgp_exec.planning.gnpp.graph import Relaxation, relax, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.pntc import Factor, add_flags, factors_of
@@ -98,3 +98,29 @@ def test_a_contradictory_pin_stays_infeasible(setup):
     assert not res.feasible
     assert res.violations[0] == 0.0 and res.violations[1] > FEAS_TOL
     assert solver.iters == []  # no free variable: nothing for IPOPT to do
+
+
+def test_hand_rows_cover_the_vertical_line_above_the_keyframe(setup):
+    """ColHO keeps each hand sphere's vertical line of LIFT clear (the descent onto the keyframe and the
+    lift off it): a box above a fingertip within LIFT is a violation, one below it or beside it is not."""
+    lib, _, _ = setup
+    arm = "right_arm"
+    q = lib.home_q(arm)
+    sh = lib.arm_shapes(arm)
+    P = np.asarray(sh.fn(q)[0])
+    tip, r = P[:, sh.hand[1]], sh.radii[sh.hand[1]]
+    ff = lib.factor(("ColHO", arm, "b1"))
+    half = lib.objects["b1"].size[2] / 2
+
+    def clear(dx: float, dz: float) -> bool:
+        w = np.array([tip[0] + dx, tip[1], tip[2] + dz, 0.0])
+        g = np.asarray(ff.fn(q, w)).reshape(-1)
+        return bool(np.all(g >= ff.lower - 1e-9))
+
+    assert not clear(0.0, LIFT / 2 + half)  # the box's bottom halfway up the line
+    assert not clear(0.0, LIFT + half + r / 2)  # just above the top of the line, within the radius
+    top = max(P[2, k] + sh.radii[k] for k in sh.hand) + LIFT  # the highest point of every swept sphere
+    bottom = min(P[2, k] - sh.radii[k] for k in sh.hand)
+    assert clear(0.0, top - tip[2] + half + 0.01)  # above every line
+    assert clear(0.0, bottom - tip[2] - half - 0.01)  # below the hand: the lines go up only
+    assert clear(0.3, LIFT / 2)  # beside it
