@@ -124,3 +124,29 @@ def test_hand_rows_cover_the_vertical_line_above_the_keyframe(setup):
     assert clear(0.0, top - tip[2] + half + 0.01)  # above every line
     assert clear(0.0, bottom - tip[2] - half - 0.01)  # below the hand: the lines go up only
     assert clear(0.3, LIFT / 2)  # beside it
+
+
+def test_an_object_only_nlp_gets_more_starts_only_when_infeasible(setup):
+    """Over object poses only, an "infeasible" verdict from the guess is checked from OBJECT_STARTS
+    perturbed starts too (cheap NLPs; a block started inside its neighbour misleads the solver); a
+    feasible one stops at the first start. A contradiction stays infeasible."""
+    from rlgp_exec.planning.gnpp.pntc import Var
+    from rlgp_exec.planning.gnpp.solver import OBJECT_STARTS
+
+    lib, graph, _ = setup
+    xb1, xb2 = Var("x", "b1", 99), Var("x", "b2", 99)
+    ps = next(f for f in graph if f.kind == "Place").partial
+    ref = Factor(("Ref", "b2"), (xb2,), ps)
+    on = Factor(("On", "b1", "b2"), (xb1, xb2), ps)
+    place = Factor(("Place", "b1", "goal_region"), (xb1,), ps)
+    apart = Factor(("ColOO", "b1", "b2"), (xb1, xb2), ps)
+    start = {xb1: lib.start_pose("b2"), xb2: lib.start_pose("b2")}  # b1 started inside b2
+    solver = GraphSolver(lib)
+    res = solver.solve([ref, place, apart], start)
+    assert res.feasible and max(res.violations) <= FEAS_TOL
+    n = len(solver.iters)
+    assert not solver.solve([ref, on, place], start).feasible  # on b2 (off the region) and on the region
+    assert len(solver.iters) - n == 1 + OBJECT_STARTS
+    n = len(solver.iters)
+    assert solver.solve([ref, on], start).feasible
+    assert len(solver.iters) - n == 1
