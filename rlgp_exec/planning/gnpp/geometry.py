@@ -48,6 +48,7 @@ from rlgp_exec.scene.geometry import Box, fixture_boxes
 __all__ = [
     "FLOOR",
     "GRASP_DEPTH",
+    "LIFT",
     "MAX_TILT",
     "PLACE_LIFT",
     "T_TOOL_UPRIGHT",
@@ -71,6 +72,10 @@ FINGER_UP = 0.025  # [m] the second point of each open finger, this far above it
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 FLOOR = 3.0  # [m] a mobile base's x and y stay within +-FLOOR of the world origin (as objects' poses do)
 BASE_MARGIN = 0.02  # [m] a mobile base keeps this far from the fixtures' footprints (as R-LGP's keyframes)
+#: [m] a hand descends onto each keyframe and lifts off it along a vertical line this long (``motion``):
+#: ``ColHO`` keeps that whole line of each hand sphere clear of the resting objects (the replay checks
+#: it; a neighbour stacked higher than the keyframe met the fingers 4-6 cm up, obstacles_tower_pr2)
+LIFT = 0.10
 
 
 def tool_upright(approach: tuple[float, float, float], closing: tuple[float, float, float]) -> FloatArray:
@@ -449,7 +454,10 @@ class FactorLib:
         q, w, rows = ca.SX.sym("q", len(self.arm_index(arm))), ca.SX.sym("w", 4), Rows.empty()
         P = sh.fn(q)[0]
         half = np.asarray(self.objects[obj].size) / 2
-        points_box_clear([P[:, k] for k in points], [sh.radii[k] for k in points], w, half, rows)
+        centres = [P[:, k] for k in points]
+        if hand:  # each sphere swept LIFT up (a capsule): its point nearest the upright box in height
+            centres = [ca.vertcat(c[0], c[1], ca.fmin(ca.fmax(w[2], c[2]), c[2] + LIFT)) for c in centres]
+        points_box_clear(centres, [sh.radii[k] for k in points], w, half, rows)
         return [q, w], rows
 
     def _f_ColAO(self, arm: str, obj: str):
@@ -457,7 +465,10 @@ class FactorLib:
         return self._arm_object(arm, obj, hand=False)
 
     def _f_ColHO(self, arm: str, obj: str):
-        """The hand and fingers clear of a resting object (not the one the hand has just let go)."""
+        """The hand and fingers clear of a resting object (not the one the hand has just let go), on the
+        whole vertical line (``LIFT``) the hand descends along onto the keyframe and lifts off by: for an
+        upright box and a vertical segment the nearest point is at the box centre's height clamped to
+        the segment, so each sphere keeps one row."""
         return self._arm_object(arm, obj, hand=True)
 
     def _f_ColOO(self, obj_a: str, obj_b: str):

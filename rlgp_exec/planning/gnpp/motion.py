@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rlgp_exec.planning.gnpp.geometry import FLOOR, FactorLib
+from rlgp_exec.planning.gnpp.geometry import FLOOR, LIFT, FactorLib
 from rlgp_exec.planning.gnpp.guess import TopIK, rel_T
 from rlgp_exec.planning.gnpp.pntc import MOVES, Var
 from rlgp_exec.planning.symbolic.model import GroundAction
@@ -30,7 +30,6 @@ from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["LIFT", "Transit", "phases_of"]
 
-LIFT = 0.10  # [m]
 LIFT_STEPS = 5  # rows of a lift (2 cm apart): straight up in the world, not only in joint space
 LIFT_NEWTON = 20  # damped least-squares iterations per row at most
 LIFT_TOL = 1e-3  # [m, rad] a lift row's largest position or orientation error

@@ -21,9 +21,10 @@ import numpy as np
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
+from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["FEAS_TOL", "RESTART_ABOVE", "SEARCH", "Feasibility", "GraphSolver", "SolveResult"]
+__all__ = ["FEAS_TOL", "OBJECT_STARTS", "RESTART_ABOVE", "SEARCH", "Feasibility", "GraphSolver", "SolveResult"]
 
 log = logging.getLogger(__name__)
 FEAS_TOL = 1e-4  # [m or rad] a factor is satisfied when no row is off its bounds by more
@@ -43,6 +44,11 @@ IPOPT = {
     "ipopt.acceptable_compl_inf_tol": 1e20,
     "ipopt.acceptable_obj_change_tol": 1e20,
     "ipopt.hessian_approximation": "limited-memory",
+    # two L-BFGS pairs, not IPOPT's 6: each pair costs extra back-solves of the KKT system every
+    # iteration (with ~2000 collision rows they were most of a full graph's solve). Recorded solves of
+    # three runs (tower, obstacles, Hanoi; 1994 NLPs) replayed: as many iterations (-5 % to +1.5 %), the
+    # same verdicts but one (a full graph "infeasible" before, feasible now), 16-38 % less CPU
+    "ipopt.limited_memory_max_history": 2,
 }
 #: the conflict search's solves of subgraphs with arm variables add IPOPT's heuristics for problems
 #: likely infeasible (the restoration phase entered sooner, left only after more reduction of the
@@ -67,6 +73,11 @@ REFUTE_TRIES = 8
 #: feasible point 4 times, all on full-graph windows of over 100 factors, and took 45 % of the
 #: search's NLP time on Hanoi
 RESTART_ABOVE = 60
+#: starts after the guess for an NLP over object poses only (cheap: a few ms each), each object's guess
+#: perturbed (``X_JITTER``): from a guess with a block inside its neighbour a signed distance leads
+#: nowhere, and obstacles_tower_pr2 seed 4 found and ``refute``d the same false conflict (a block on the
+#: goal region beside an obstacle) 12 times, blocking 4 plans
+OBJECT_STARTS = 2
 
 
 def _limits(n_factors: int) -> dict:
@@ -98,11 +109,14 @@ class SolveResult:
 
 @dataclass
 class _Built:
-    solver: ca.Function
-    g_fn: ca.Function
-    lbg: FloatArray
+    solver: ca.Function | None  # None: every variable pinned (nothing for IPOPT to do)
+    g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
+    lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
     ubg: FloatArray
-    rows: list[tuple[int, int]]  # per factor: row range
+    lo_all: FloatArray  # bounds of every input factor's rows (``g_fn``)
+    hi_all: FloatArray
+    rows: list[tuple[int, int]]  # per input factor: its row range in ``g_fn``
+    pre: Presolved
 
 
 class GraphSolver:
@@ -134,11 +148,15 @@ class GraphSolver:
         )
 
     def _build(self, factors: Sequence[Factor], order: list[Var]) -> _Built:
-        dims = [self.lib.dim(v.kind, v.owner) for v in order]
+        pre = presolve(self.lib, factors, order)
+        dims = [self.lib.dim(order[i].kind, order[i].owner) for i in pre.free]
         offs = np.cumsum([0, *dims])
         x = ca.MX.sym("x", int(offs[-1]))
         p = ca.MX.sym("p", int(offs[-1]))
-        slot = {v: x[int(offs[i]) : int(offs[i + 1])] for i, v in enumerate(order)}
+        slot = {}
+        for i, v in enumerate(order):
+            kind, where = pre.slot_of(i)
+            slot[v] = ca.DM(where) if kind == "const" else x[int(offs[where]) : int(offs[where + 1])]
         gs, lo, hi, rows = [], [], [], []
         n = 0
         for f in factors:
@@ -148,12 +166,18 @@ class GraphSolver:
             hi.append(ff.upper)
             rows.append((n, n + len(ff.lower)))
             n += len(ff.lower)
-        g = ca.vertcat(*gs)
-        nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
-        search = not self.thorough and any(v.kind == "q" for v in order)
-        opts = {**IPOPT, **(SEARCH if search else {}), **_limits(len(factors))}
-        solver = ca.nlpsol("graph_nlp", "ipopt", nlp, opts)
-        return _Built(solver, ca.Function("g", [x], [g]), np.concatenate(lo), np.concatenate(hi), rows)
+        g_all = ca.vertcat(*gs)
+        g = ca.vertcat(*[gs[k] for k in pre.kept])
+        lbg = np.concatenate([lo[k] for k in pre.kept]) if pre.kept else np.zeros(0)
+        ubg = np.concatenate([hi[k] for k in pre.kept]) if pre.kept else np.zeros(0)
+        solver = None
+        if pre.free:
+            nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
+            search = not self.thorough and any(v.kind == "q" for v in order)
+            opts = {**IPOPT, **(SEARCH if search else {}), **_limits(len(factors))}
+            solver = ca.nlpsol("graph_nlp", "ipopt", nlp, opts)
+        g_fn = ca.Function("g", [x], [g_all])
+        return _Built(solver, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
 
     def refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = REFUTE_TRIES, seed: int = 0
@@ -225,29 +249,45 @@ class GraphSolver:
         built = self._cache.get(key)
         if built is None:
             built = self._cache[key] = self._build(factors, order)
-        bounds = [self.lib.var_bounds(v.kind, v.owner) for v in order]
-        lbx = np.concatenate([b[0] for b in bounds])
-        ubx = np.concatenate([b[1] for b in bounds])
-        guess = _apart(factors, guess)
-        starts = [np.concatenate([guess[v] for v in order])]
-        if any(v.kind == "q" for v in order):  # a second start: every arm at its start posture (base kept)
-            starts.append(np.concatenate([self._home_start(v, guess[v]) for v in order]))
-        for x0 in starts[: 1 + (self.restarts if len(factors) > RESTART_ABOVE else 0)]:
+        pre = built.pre
+        free = [order[i] for i in pre.free]
+        bounds = [self.lib.var_bounds(v.kind, v.owner) for v in free]
+        lbx = np.concatenate([b[0] for b in bounds]) if free else np.zeros(0)
+        ubx = np.concatenate([b[1] for b in bounds]) if free else np.zeros(0)
+        eff, movable = {}, {}  # each variable's start (a pinned one: its constant); the free ones' NLP variable
+        for i, v in enumerate(order):
+            kind, where = pre.slot_of(i)
+            if kind == "const":
+                eff[v] = np.asarray(where, float)
+            else:
+                movable[v] = order[pre.rep[i]]
+                eff[v] = guess[movable[v]]
+        guess = _apart(factors, eff, movable)
+        starts = [np.concatenate([guess[v] for v in free]) if free else np.zeros(0)]
+        if any(v.kind == "q" for v in free):  # a second start: every arm at its start posture (base kept)
+            starts.append(np.concatenate([self._home_start(v, guess[v]) for v in free]))
+            starts = starts[: 1 + (self.restarts if len(factors) > RESTART_ABOVE else 0)]
+        elif free:  # objects only: a few ms a solve; OBJECT_STARTS more, each object's guess perturbed
+            rng = np.random.default_rng(len(factors))
+            starts += [np.concatenate([self._jittered(v, guess[v], rng) for v in free]) for _ in range(OBJECT_STARTS)]
+        for x0 in starts:
             x0 = np.clip(x0, lbx, ubx)
-            res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
-            self.iters.append(int(built.solver.stats()["iter_count"]))
-            xs = np.asarray(res["x"]).reshape(-1)
+            xs = x0
+            if built.solver is not None:
+                res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+                self.iters.append(int(built.solver.stats()["iter_count"]))
+                xs = np.asarray(res["x"]).reshape(-1)
             g = np.asarray(built.g_fn(xs)).reshape(-1)
-            over = np.maximum(np.maximum(built.lbg - g, g - built.ubg), 0.0)
+            over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
             over[~np.isfinite(g)] = np.inf
             viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
             if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
                 break
-        values, k = {}, 0
-        for v in order:
-            d = self.lib.dim(v.kind, v.owner)
-            values[v] = xs[k : k + d].copy()
-            k += d
+        offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
+        values = {}
+        for i, v in enumerate(order):
+            kind, where = pre.slot_of(i)
+            values[v] = np.array(where, float) if kind == "const" else xs[offs[where] : offs[where + 1]].copy()
         ok = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
         dt = time.perf_counter() - t0
         self.n_solves += 1
@@ -259,19 +299,26 @@ class GraphSolver:
         return SolveResult(Feasibility.FEASIBLE if ok else Feasibility.INFEASIBLE, values, viol, dt)
 
 
-def _apart(factors: Sequence[Factor], guess: Mapping[Var, FloatArray]) -> Mapping[Var, FloatArray]:
+def _apart(
+    factors: Sequence[Factor], guess: Mapping[Var, FloatArray], movable: Mapping[Var, Var]
+) -> Mapping[Var, FloatArray]:
     """``guess`` with resting objects that a ColOO factor keeps apart and that start at one point moved
     apart (a few cm, in a fixed direction per pair): there a signed distance has no gradient, and
-    the solver stays stuck (a false "infeasible" that ``refute`` would have to catch)."""
+    the solver stays stuck (a false "infeasible" that ``refute`` would have to catch). ``movable``: the
+    free variables, each to its NLP variable after ``presolve`` (the one whose start counts); the
+    second object's is moved if it is free, else the first's; two pinned objects stay."""
     out: dict[Var, FloatArray] | None = None
     for k, f in enumerate(factors):
         if f.kind != "ColOO":
             continue
-        a, b = f.vars
+        a, b = (movable.get(v, v) for v in f.vars)
+        mover = b if f.vars[1] in movable else a if f.vars[0] in movable else None
+        if mover is None or a == b:
+            continue
         cur = out if out is not None else guess
         if float(np.linalg.norm(np.asarray(cur[a])[:2] - np.asarray(cur[b])[:2])) < 1e-3:
             if out is None:
                 out = dict(guess)
             ang = 2.399963 * k  # the golden angle: pairs move in different directions
-            out[b] = np.asarray(out[b], float) + np.array([0.05 * np.cos(ang), 0.05 * np.sin(ang), 0.0, 0.0])
+            out[mover] = np.asarray(out[mover], float) + np.array([0.05 * np.cos(ang), 0.05 * np.sin(ang), 0.0, 0.0])
     return guess if out is None else out
