@@ -574,9 +574,10 @@ def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_til
 
 def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear():
     """``self_rows_function`` gives the rows ``self_clear`` builds (values at random configurations), the
-    same function again for arguments with equal contents, and another for another body."""
+    same function again for arguments with equal contents (whatever the base and arm in q_fixed), another
+    for another body, and keeps only the latest SELF_ROWS_KEPT per model."""
     from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
-    from rlgp_exec.planning.nlp.hand import self_clear, self_rows_function
+    from rlgp_exec.planning.nlp.hand import _SELF_ROWS, SELF_ROWS_KEPT, self_clear, self_rows_function
     from rlgp_exec.planning.sequence import SequenceGeometry
 
     scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
@@ -586,7 +587,13 @@ def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear()
     fn, lower = self_rows_function(geo.model, None, (), geo.q0, spheres, body)
     again = self_rows_function(geo.model, None, (), geo.q0.copy(), list(spheres), [(f, b) for f, b in body])
     assert again[0] is fn
+    arm_moved = geo.q0.copy()  # z's joints (base, arm) are not part of the key: z overrides them
+    arm_moved[[*geo.model.group("base"), *geo.model.group(geo.model.manipulator().group)]] += 0.3
+    assert self_rows_function(geo.model, None, (), arm_moved, spheres, body)[0] is fn
     assert self_rows_function(geo.model, None, (), geo.q0, spheres, body[:-1])[0] is not fn
+    for k in range(SELF_ROWS_KEPT + 2):  # a long-running process keeps only the latest few
+        self_rows_function(geo.model, None, (), geo.q0, spheres[: k + 1], body)
+    assert len(_SELF_ROWS[geo.model]) == SELF_ROWS_KEPT
     z = ca.SX.sym("z", fn.size1_in(0))
     rows = Rows.empty()
     self_clear(geo.model, RobotSymbols(geo.model, geo.q0, None, z).q, list(spheres), list(body), rows)

@@ -300,6 +300,7 @@ def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]]
 
 
 _SELF_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {arguments: self_rows_function's}
+SELF_ROWS_KEPT = 16  # self-clearance functions kept per model (other arms' postures, bodies), least recent dropped
 
 
 def _content_key(items: Sequence) -> bytes:
@@ -322,19 +323,24 @@ def self_rows_function(
     spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]],
 ) -> tuple[ca.Function, FloatArray]:
     """(z -> the ``self_clear`` rows, their lower bounds) for z = [base, the manipulator's arm, the ``extra``
-    joints] (``RobotSymbols``), the other joints at ``q_fixed``. Built once per model and arguments,
-    then shared (read-only): the keyframe NLP and level 3 call it on their symbols (an SX call inlines
-    the same expression) instead of rebuilding the rows (PR2: ~20 ms per keyframe, ~90 ms per level 3)."""
-    key = (manipulator, tuple(extra), np.asarray(q_fixed, float).tobytes(), _content_key(spheres),
-           _content_key(body))
+    joints] (``RobotSymbols``), the other joints at ``q_fixed``. Built once per model and arguments (the
+    ``SELF_ROWS_KEPT`` latest are kept), then shared (read-only): the keyframe NLP and level 3 call it on
+    their symbols (an SX call inlines the same expression) instead of rebuilding the rows (PR2: ~20 ms per
+    keyframe, ~90 ms per level 3)."""
+    manip = model.manipulator(manipulator)
+    fixed = np.array(q_fixed, float)
+    fixed[[*model.group("base"), *model.group(manip.group), *extra]] = 0.0  # z's joints: not part of the key
+    key = (manip.name, tuple(extra), fixed.tobytes(), _content_key(spheres), _content_key(body))
     per_model = _SELF_ROWS.setdefault(model, {})
-    out = per_model.get(key)
+    out = per_model.pop(key, None)
     if out is None:
-        manip = model.manipulator(manipulator)
         z = ca.SX.sym("z", len(model.group("base")) + len(model.group(manip.group)) + len(extra))
         rs = RobotSymbols(model, q_fixed, manip.name, z, extra)
         rows = Rows.empty()
         self_clear(model, rs.q, list(spheres), list(body), rows)
         g = ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)
-        out = per_model[key] = (ca.Function("self_rows", [z], [g]), np.asarray(rows.lower, float))
+        out = (ca.Function("self_rows", [z], [g]), np.asarray(rows.lower, float))
+    per_model[key] = out  # most recently used last; a long-running executive keeps the SELF_ROWS_KEPT latest
+    while len(per_model) > SELF_ROWS_KEPT:
+        del per_model[next(iter(per_model))]
     return out
