@@ -326,9 +326,7 @@ def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
     instructions and nlpsol took 1.2 s, against 264k and 0.4 s with the pose variables (a grasp
     variable as well, T_tool_obj read by the place, changed neither)."""
     P = ca.SX.sym(name, 12)
-    T34 = ca.vec(T[:3, :4])
-    for i in range(12):
-        rows.add(P[i] - T34[i], 0.0, 0.0)
+    rows.add_all(P - ca.vec(T[:3, :4]), [0.0] * 12, 0.0)
     T_P = ca.SX.eye(4)
     T_P[:3, :4] = ca.reshape(P, 3, 4)
     return P, T_P
@@ -459,10 +457,7 @@ def _build(
         still_bx = [replace(b, T=poses[b.name]) for b in still]
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
-        g_self, lb_self = self_rows
-        g_self = g_self(Z[:, k])
-        for i, lower in enumerate(lb_self):
-            rows.add(g_self[i], float(lower), ca.inf)
+        rows.add_all(self_rows[0](Z[:, k]), self_rows[1], ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]

@@ -159,9 +159,7 @@ def _rows(model, manip, extra, seg: Segment, z: ca.SX, hand, self_rows: tuple[ca
     boxes = _near(model, rs, seg)
     box_clear(rs, boxes, rows, margin=MARGIN)
     points_clear(rs.T_tool, [*hand, *_held_spheres(seg.held)], boxes, rows, margin=MARGIN)
-    g_self = self_rows[0](z)
-    for i, lb in enumerate(self_rows[1]):
-        rows.add(g_self[i], float(lb), ca.inf)
+    rows.add_all(self_rows[0](z), self_rows[1], ca.inf)
     footprint_clear(rs, list(seg.footprints), rows, margin=BASE_MARGIN)
     return rows
 
