@@ -653,3 +653,52 @@ def test_vectorised_clearance_rows_equal_the_per_sphere_formulas(robot):
     for _ in range(5):
         a, b = f(rng.uniform(-2.0, 2.0, z.numel()))
         assert np.allclose(np.asarray(a), np.asarray(b), atol=1e-12)
+
+
+def test_the_keyframe_proxy_catches_an_upper_arm_turned_into_the_chest_or_the_other_shoulder():
+    """PR2, the right shoulder pan near its inner limit and the other arm joints random, the left arm tucked:
+    every configuration in which PyBullet finds the upper arm more than 5 mm into the torso or into the left
+    shoulder violates a self-clearance row of the keyframe NLP (the arm's spheres off the body behind the
+    shoulders, the upper arm's off ``inner_obstacles``: the chest between them and the left shoulder), and
+    the tucked start holds every row. The body behind the shoulders alone misses some (pick_place_pr2 seeds
+    5, 9, 15, 16 lost keyframe starts to them)."""
+    import pybullet as p
+
+    from rlgp_exec.planning.nlp.hand import self_rows_function, upper_arm_spheres
+    from rlgp_exec.planning.sequence import SequenceGeometry
+
+    geo = SequenceGeometry(load_scene(SORTING.parent / "pick_place_pr2.toml"), seed=0)
+    try:
+        model, robot = geo.model, geo.checker.robot
+        assert [b.name for _, b in geo.inner] == ["chest", "l_shoulder_pan_link"]
+        body = self_rows_function(model, None, (), geo.q0, geo.self_spheres, geo.body)
+        inner = self_rows_function(model, None, (), geo.q0, upper_arm_spheres(geo.self_spheres), geo.inner)
+
+        def violated(rows, z):
+            return bool(np.any(np.asarray(rows[0](z)).ravel() < rows[1]))
+
+        z0 = geo.ik.z_of(geo.q0)
+        assert not violated(body, z0) and not violated(inner, z0)
+        arm = np.array(model.group(model.manipulator().group))
+        lo, hi = np.maximum(model.limits.lower[arm], -3.0), np.minimum(model.limits.upper[arm], 3.0)
+        upper_arm = robot.link_index["r_upper_arm_link"]
+        into = {robot.link_index["torso_lift_link"], robot.link_index["l_shoulder_pan_link"]}
+        rng = np.random.default_rng(3)
+        hits, missed_behind_only = 0, 0
+        for _ in range(300):
+            q = geo.q0.copy()
+            q[arm] = rng.uniform(lo, hi)
+            q[arm[0]] = rng.uniform(hi[0] - 0.3, hi[0])  # the shoulder pan turned inwards
+            robot.set_q(q)
+            p.performCollisionDetection(physicsClientId=robot.client)
+            contacts = p.getContactPoints(bodyA=robot.id, bodyB=robot.id, physicsClientId=robot.client)
+            if not any(upper_arm in (c[3], c[4]) and {c[3], c[4]} & into and c[8] < -0.005 for c in contacts):
+                continue
+            hits += 1
+            z = geo.ik.z_of(q)
+            assert violated(body, z) or violated(inner, z), f"the proxy misses the upper arm at {q[arm].round(3)}"
+            missed_behind_only += not violated(body, z)
+        assert hits >= 10  # the sample reaches the situation at all
+        assert missed_behind_only > 0
+    finally:
+        geo.close()

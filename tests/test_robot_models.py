@@ -256,3 +256,65 @@ def test_pr2_urdf_comes_from_the_wheel_with_package_paths_rewritten():
     meshes = re.findall(r'filename="([^"]+)"', text)
     assert meshes and all(Path(m).is_file() for m in meshes)
     assert all("cmeel.prefix" in Path(m).parts for m in meshes)  # in the installed wheel, not copied here
+
+
+def test_the_pr2_keyframe_wrist_limit_is_where_the_fingers_leave_the_forearm():
+    """Random right-arm postures, left arm tucked: with the wrist flexed past ``keyframe_limits`` the open
+    fingers are in the forearm's hull in most postures (beyond -1.9 rad: over 90 %), inside them about as
+    rarely as anywhere (under 8 %); the keyframe NLP's bounds are the joint limits narrowed to them."""
+    from rlgp_exec.planning.nlp.keyframes import _keyframe_bounds
+    from rlgp_exec.reach import ReachIK
+    from rlgp_exec.scene import load_scene
+
+    robot = load_robot("pr2")
+    lo_k, hi_k = robot.config.keyframe_limits["r_wrist_flex_joint"]
+    client = p.connect(p.DIRECT)
+    try:
+        body = PyBulletRobot(robot, client)
+        arm = np.array(robot.group("right_arm"))
+        wrist = robot.index("r_wrist_flex_joint")
+        forearm = body.link_index["r_forearm_link"]
+        fingers = {body.link_index[n] for n in ("r_gripper_l_finger_link", "r_gripper_r_finger_link",
+                                                "r_gripper_l_finger_tip_link", "r_gripper_r_finger_tip_link")}
+        lo, hi = np.maximum(robot.limits.lower[arm], -3.0), np.minimum(robot.limits.upper[arm], 3.0)
+        rng = np.random.default_rng(0)
+        beyond, inside = [], []
+        for _ in range(600):
+            q = robot.home()
+            q[arm] = rng.uniform(lo, hi)
+            body.set_q(q)
+            p.performCollisionDetection(physicsClientId=client)
+            hit = any({c[3], c[4]} & {forearm} and {c[3], c[4]} & fingers and c[8] < -0.001
+                      for c in p.getContactPoints(bodyA=body.id, bodyB=body.id, physicsClientId=client))
+            if q[wrist] < -1.9:
+                beyond.append(hit)
+            elif lo_k <= q[wrist] <= hi_k:
+                inside.append(hit)
+        assert len(beyond) > 30 and np.mean(beyond) > 0.9
+        assert len(inside) > 300 and np.mean(inside) < 0.08
+    finally:
+        p.disconnect(client)
+    scene = load_scene(Path(__file__).resolve().parents[1] / "sim" / "scenes" / "pick_place_pr2.toml")
+    ik = ReachIK(robot, scene, robot.home())
+    lo_z, hi_z = _keyframe_bounds(robot, ik)
+    k = int(np.flatnonzero(ik.idx == wrist)[0])
+    assert (lo_z[k], hi_z[k]) == (max(ik.lo[k], lo_k), min(ik.hi[k], hi_k)) == (lo_k, 0.0)
+    others = np.arange(len(ik.idx)) != k
+    assert np.array_equal(lo_z[others], ik.lo[others]) and np.array_equal(hi_z[others], ik.hi[others])
+
+
+@pytest.mark.parametrize(("entry", "match"), [
+    ("no_such_joint = [-1.0, 0.0]", "keyframe_limits names 'no_such_joint', in no group; valid"),
+    ("r_wrist_flex_joint = [0.0, -1.0]", "lower < upper"),
+    ('r_wrist_flex_joint = "tight"', "must be \\[lower, upper\\]"),
+])
+def test_bad_keyframe_limits_are_model_errors_naming_the_entry(tmp_path, monkeypatch, entry, match):
+    import rlgp_exec.robot.config as config
+
+    text = (robot_dir("pr2") / "robot.toml").read_text()
+    start = text.index("[keyframe_limits]")
+    end = text.index("\n\n", start)
+    (tmp_path / "robot.toml").write_text(text[:start] + "[keyframe_limits]\n" + entry + text[end:])
+    monkeypatch.setattr(config, "robot_dir", lambda name: tmp_path)
+    with pytest.raises(ModelError, match=match):
+        config.load_robot_config("pr2")

@@ -29,6 +29,7 @@ from rlgp_exec.planning.nlp.hand import (
     arm_link_spheres,
     body_obstacles,
     finger_spheres,
+    inner_obstacles,
     mesh_finger_spheres,
     other_arm_obstacles,
 )
@@ -97,6 +98,8 @@ class SequenceGeometry:
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         # level 3's self-clearance: the body and the other arms where q0 has them
         self.l3_body = self.body + other_arm_obstacles(self.checker.robot, self.model, self.q0)
+        # the keyframes': the chest and the other arms' shoulders, kept off the upper arm (an arm turned inwards)
+        self.inner = inner_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
         self.n_nlp = 0
         self.level3, self.T = level3, T
@@ -401,6 +404,7 @@ class SequenceGeometry:
             deadline=deadline,
             cache=self._nlp_cache,
             mesh_hand=self.mesh_hand,
+            inner=self.inner,
         )
         empty = np.zeros((0, self.model.nq))
 

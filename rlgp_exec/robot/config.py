@@ -63,6 +63,9 @@ class RobotConfig:
     lookout: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     #: links around the head camera that its own images do not show (the camera looks out of them)
     camera_housing: tuple[str, ...] = ()
+    #: joint -> (lower, upper) [rad or m] a planned keyframe keeps within: where the robot's own hulls meet
+    #: inside the URDF's limits (a hand against its forearm), which the keyframe NLP's shapes do not model
+    keyframe_limits: Mapping[str, tuple[float, float]] = field(default_factory=lambda: MappingProxyType({}))
 
     def manipulator(self, name: str | None = None) -> Manipulator:
         """The named manipulator, or the first one."""
@@ -112,6 +115,15 @@ def load_robot_config(name: str) -> RobotConfig:
     acc = {k: float(v) for k, v in raw.get("acceleration", {}).items()}
     jerk = {k: float(v) for k, v in raw.get("jerk", {}).items()}
     col = raw.get("collision", {})
+    planned = {j for joints in groups.values() for j in joints}
+    keyframe_limits: dict[str, tuple[float, float]] = {}
+    for joint, rng in raw.get("keyframe_limits", {}).items():
+        if joint not in planned:
+            raise ModelError(f"{where}: keyframe_limits names {joint!r}, in no group; valid: {sorted(planned)}")
+        if not (isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, (int, float)) for v in rng)
+                and rng[0] < rng[1]):
+            raise ModelError(f"{where}: keyframe_limits.{joint} must be [lower, upper] with lower < upper, got {rng!r}")
+        keyframe_limits[joint] = (float(rng[0]), float(rng[1]))
     return RobotConfig(
         name=_get(robot, "name", where),
         urdf=_get(robot, "urdf", where),
@@ -133,4 +145,5 @@ def load_robot_config(name: str) -> RobotConfig:
         folder=folder,
         lookout=MappingProxyType({k: float(v) for k, v in raw.get("lookout", {}).items()}),
         camera_housing=tuple(raw.get("camera", {}).get("housing", ())),
+        keyframe_limits=MappingProxyType(keyframe_limits),
     )

@@ -43,7 +43,7 @@ from rlgp_exec.planning.nlp.factors import (
     grasp_top_round,
     inside_rectangle,
 )
-from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function
+from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function, upper_arm_spheres
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, base_circles, box_sdf
@@ -401,11 +401,13 @@ def _build(
     objs: dict,
     drawers: dict,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
+    inner: Sequence[tuple[str, Box]] = (),
 ) -> _Problem:
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
     Z = ca.SX.sym("z", n, K)
     self_rows = self_rows_function(model, manipulator, (), q_start, self_spheres, body)
+    inner_rows = self_rows_function(model, manipulator, (), q_start, upper_arm_spheres(self_spheres), inner)
     tilt_rows: list[int] = []
     rows = Rows.empty()
     hand_reach = finger_reach(hand)
@@ -458,6 +460,7 @@ def _build(
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
         rows.add_all(self_rows[0](Z[:, k]), self_rows[1], ca.inf)
+        rows.add_all(inner_rows[0](Z[:, k]), inner_rows[1], ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
@@ -575,8 +578,9 @@ def _build(
     opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
     solver = ca.nlpsol("keyframes", "ipopt", nlp, opts)
     n_aux = 12 * len(aux)
-    lbx = np.r_[np.tile(ik.lo, K), np.full(n_aux, -np.inf)]
-    ubx = np.r_[np.tile(ik.hi, K), np.full(n_aux, np.inf)]
+    lo, hi = _keyframe_bounds(model, ik)
+    lbx = np.r_[np.tile(lo, K), np.full(n_aux, -np.inf)]
+    ubx = np.r_[np.tile(hi, K), np.full(n_aux, np.inf)]
     aux0 = ca.Function("aux0", [ca.vec(Z)], [ca.vertcat(*(e for _, e, _ in aux)) if aux else ca.DM(0, 1)])
     lbg, ubg = np.asarray(rows.lower, float), np.asarray(rows.upper, float)
     f_motion = ca.Function("f_motion", [ca.vec(Z)], [cost])
@@ -585,6 +589,17 @@ def _build(
         lbx, ubx, lbg, ubg, tilt_rows, np.asarray(row_keyframe, int), tuple(couples), aux0,
         tuple(r for _, _, r in aux),
     )
+
+
+def _keyframe_bounds(model: RobotModel, ik: ReachIK) -> tuple[FloatArray, FloatArray]:
+    """Bounds (n,) on a keyframe's z: IK's (the joint limits, the yaw free), each joint narrowed to the robot
+    config's ``keyframe_limits`` (where its own hulls meet inside the URDF's limits)."""
+    lo, hi = ik.lo.copy(), ik.hi.copy()
+    for k, i in enumerate(ik.idx):
+        narrow = model.config.keyframe_limits.get(model.joint_names[int(i)])
+        if narrow is not None:
+            lo[k], hi[k] = max(lo[k], narrow[0]), min(hi[k], narrow[1])
+    return lo, hi
 
 
 def _kept(prob: _Problem, zk: FloatArray, violated: FloatArray) -> dict[int, FloatArray]:
@@ -621,6 +636,7 @@ def solve_keyframes(
     deadline: float | None = None,
     cache: dict | None = None,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
+    inner: Sequence[tuple[str, Box]] = (),
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
@@ -630,7 +646,8 @@ def solve_keyframes(
     ``hand``: spheres on the open fingers (tool frame, ``nlp.hand.finger_spheres``), kept clear too;
     ``mesh_hand``: spheres on the fingers' mesh shapes (``nlp.hand.mesh_finger_spheres``), kept off the
     objects only; ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
-    (``nlp.hand.body_obstacles``).
+    (``nlp.hand.body_obstacles``), the upper arm's (``nlp.hand.upper_arm_spheres``) off the ``inner`` ones too
+    (``nlp.hand.inner_obstacles``: the chest and the other arms' shoulders).
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
@@ -663,7 +680,7 @@ def solve_keyframes(
     if prob is None:
         prob = _build(
             model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers,
-            mesh_hand,
+            mesh_hand, inner,
         )
         if cache is not None:  # one sequence at a time: its tilts share the NLP
             cache.clear()
