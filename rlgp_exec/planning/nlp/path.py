@@ -73,7 +73,9 @@ TOL = 1e-3
 # the warm start is the guide, feasible but for the relaxed rows: IPOPT starts at it, not pushed 1 % of each
 # bound's range inside (its default). The level-3 NLPs of pick_place_pr2 seeds 1-6, 11, 12 and sorting_pr2
 # seeds 1-5, 7-9 replayed: 478 -> 425 iterations in all (median 27.5 -> 25.5), every optimum the same to 4
-# digits; a smaller mu_init as well found lower optima but took up to 62 iterations where 38 did
+# digits; a smaller mu_init as well found lower optima but took up to 62 iterations where 38 did. A re-solve
+# (rows added that the last solution violates) starts with IPOPT's default push: from that solution, close
+# to its active rows, sorting_pr2 seed 8 took 63 iterations against 23
 BOUND_PUSH = 1e-6
 
 
@@ -263,7 +265,7 @@ def _selectors(n: int, m: int) -> tuple[ca.DM, ca.DM]:
     return ca.sparsify(ca.DM(S)), ca.sparsify(ca.DM(D))
 
 
-def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int):
+def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: bool = True):
     """The whole-path NLP of ``blocks``: (solver, x, g, x0, lbx, ubx, lbg, ubg). Variables time-major;
     a segment's rows: its collision rows at the step midpoints, at the waypoints, then its velocity
     rows, each group time-major. IPOPT gets both derivatives assembled from their structure: the
@@ -314,7 +316,8 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int):
     jac_g = ca.Function("jac_g", [x, p], [g, jac])
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
             "ipopt.tol": TOL, "ipopt.mu_init": 1e-3, "ipopt.hessian_constant": "yes", "hess_lag": hess_lag,
-            "ipopt.warm_start_init_point": "yes", "ipopt.bound_push": BOUND_PUSH, "ipopt.bound_frac": BOUND_PUSH,
+            **({"ipopt.warm_start_init_point": "yes", "ipopt.bound_push": BOUND_PUSH, "ipopt.bound_frac": BOUND_PUSH}
+               if at_guide else {}),
             "jac_g": jac_g}
     solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, opts)
     return (solver, x, g, jac, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
@@ -354,7 +357,7 @@ def optimize_paths(
     x_last = None
     for rnd in range(ROUNDS):
         t1 = time.perf_counter()
-        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter)
+        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter, x_last is None)
         jac_nnz = int(jac.sparsity().nnz())
         t2 = time.perf_counter()
         build_s += t2 - t1
