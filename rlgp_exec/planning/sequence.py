@@ -191,7 +191,8 @@ class SequenceGeometry:
         first, then move the arm; turn the base on the spot to the other end's heading, then drive
         (or drive, then turn; or back off, turn, drive, come in); with an empty hand, fold the arm
         (the home posture), drive, unfold (the checks do not cover a held object against the robot's
-        own body). A verdict on a configuration or motion that variants share is computed once."""
+        own body); when a footprint is in the way of the straight drive, drive round the fixtures
+        (``_round_variants``). A verdict on a configuration or motion that variants share is computed once."""
         lifts = [n for n in ("arm_lift_joint", "torso_lift_joint") if n in self.model.joint_names]
         if not lifts:
             return None
