@@ -30,45 +30,85 @@ def _frame(T: FloatArray) -> tuple[FloatArray, FloatArray]:
     return T[:2, :2], T[:2, -1]
 
 
+_Rect = tuple[float, float, float, float, float, float, float, float]  # centre, R (row-major), half extents
+
+
+def _rect(T: FloatArray, size: FloatArray) -> _Rect:
+    """A footprint as plain floats (the visibility tests run ~10^3 times a detour: no numpy per test)."""
+    R, c = _frame(T)
+    return (float(c[0]), float(c[1]), float(R[0, 0]), float(R[0, 1]), float(R[1, 0]), float(R[1, 1]),
+            float(size[0]) / 2, float(size[1]) / 2)
+
+
+def _local(r: _Rect, x: float, y: float) -> tuple[float, float]:
+    """The point (x, y) [m] in the footprint's frame (R^T (p - c))."""
+    dx, dy = x - r[0], y - r[1]
+    return r[2] * dx + r[4] * dy, r[3] * dx + r[5] * dy
+
+
+def _enters(ax: float, ay: float, bx: float, by: float, hx: float, hy: float) -> bool:
+    """The segment a -> b (local frame) meets the closed box |x| <= hx, |y| <= hy (Liang-Barsky)."""
+    lo, hi = 0.0, 1.0
+    for a, d, h in ((ax, bx - ax, hx), (ay, by - ay, hy)):
+        if abs(d) < 1e-12:
+            if abs(a) > h:
+                return False
+            continue
+        t1, t2 = (-h - a) / d, (h - a) / d
+        lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
+        if lo > hi:
+            return False
+    return True
+
+
+def _box_point(x: float, y: float, hx: float, hy: float) -> float:
+    """Distance [m] from (x, y) to the box |x| <= hx, |y| <= hy (local frame; 0 inside)."""
+    return math.hypot(max(abs(x) - hx, 0.0), max(abs(y) - hy, 0.0))
+
+
+def _point_segment(x: float, y: float, ax: float, ay: float, bx: float, by: float) -> float:
+    """Distance [m] from the point (x, y) to the segment a -> b."""
+    dx, dy = bx - ax, by - ay
+    n = dx * dx + dy * dy
+    t = 0.0 if n < 1e-18 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / n))
+    return math.hypot(x - ax - t * dx, y - ay - t * dy)
+
+
+def _segment_distance(r: _Rect, p: FloatArray, q: FloatArray) -> float:
+    """``segment_distance`` on a footprint of plain floats."""
+    (ax, ay), (bx, by) = _local(r, p[0], p[1]), _local(r, q[0], q[1])
+    hx, hy = r[6], r[7]
+    if _enters(ax, ay, bx, by, hx, hy):
+        return 0.0
+    ends = min(_box_point(ax, ay, hx, hy), _box_point(bx, by, hx, hy))
+    return min(ends, *(_point_segment(sx * hx, sy * hy, ax, ay, bx, by) for sx in (-1, 1) for sy in (-1, 1)))
+
+
+def _hits(r: _Rect, p: FloatArray, q: FloatArray, radius: float) -> bool:
+    """``segment_hits`` on a footprint of plain floats; a segment missing the footprint's square grown by
+    ``radius`` (which holds the rounded one) misses at once."""
+    (ax, ay), (bx, by) = _local(r, p[0], p[1]), _local(r, q[0], q[1])
+    if not _enters(ax, ay, bx, by, r[6] + radius, r[7] + radius):
+        return False
+    return _segment_distance(r, p, q) < radius - TOUCH
+
+
 def rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
     """Distance [m] from the point xy (2,) to the footprint rectangle (0 inside it)."""
-    R, c = _frame(T)
-    local = R.T @ (np.asarray(xy, float) - c)
-    return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2], float) / 2, 0.0)))
-
-
-def _point_segment(x: FloatArray, p: FloatArray, q: FloatArray) -> float:
-    """Distance [m] from the point x to the segment p -> q."""
-    d = q - p
-    n = float(d @ d)
-    t = 0.0 if n < 1e-18 else min(1.0, max(0.0, float((x - p) @ d) / n))
-    return float(np.linalg.norm(x - (p + t * d)))
+    r = _rect(T, size)
+    return _box_point(*_local(r, float(xy[0]), float(xy[1])), r[6], r[7])
 
 
 def segment_distance(p: FloatArray, q: FloatArray, T: FloatArray, size: FloatArray) -> float:
     """Distance [m] from the segment p -> q (world plane) to the footprint rectangle (0 when they meet):
     for two disjoint convex sets in the plane, the nearest pair has a vertex of one of them."""
-    R, c = _frame(T)
-    a, b = R.T @ (np.asarray(p, float) - c), R.T @ (np.asarray(q, float) - c)
-    h = np.asarray(size[:2], float) / 2
-    lo, hi, d = 0.0, 1.0, b - a  # Liang-Barsky: does the segment enter the closed rectangle?
-    for k in range(2):
-        if abs(d[k]) < 1e-12:
-            if abs(a[k]) > h[k]:
-                lo, hi = 1.0, 0.0
-            continue
-        t1, t2 = (-h[k] - a[k]) / d[k], (h[k] - a[k]) / d[k]
-        lo, hi = max(lo, min(t1, t2)), min(hi, max(t1, t2))
-    if lo <= hi:
-        return 0.0
-    ends = min(float(np.linalg.norm(np.maximum(np.abs(x) - h, 0.0))) for x in (a, b))
-    return min(ends, *(_point_segment(v, a, b) for v in _corners(np.eye(3), h)))
+    return _segment_distance(_rect(T, size), [float(v) for v in p[:2]], [float(v) for v in q[:2]])
 
 
 def segment_hits(p: FloatArray, q: FloatArray, T: FloatArray, size: FloatArray, radius: float) -> bool:
     """True when a disc of ``radius`` [m] moving along p -> q would overlap the footprint rectangle
     (touching it, within TOUCH, does not count)."""
-    return segment_distance(p, q, T, size) < radius - TOUCH
+    return _hits(_rect(T, size), [float(v) for v in p[:2]], [float(v) for v in q[:2]], radius)
 
 
 def _corners(T: FloatArray, half: FloatArray) -> FloatArray:
@@ -108,10 +148,12 @@ def detour(start: FloatArray, goal: FloatArray, rects: Sequence[Footprint], radi
         for x in _round_corners(T, size, radius):
             if all(rect_distance(x, T2, s2) >= radius for T2, s2 in rects):
                 nodes.append(x)
+    flat = [_rect(T, size) for T, size in rects]
+    pts = [(float(x[0]), float(x[1])) for x in nodes]
 
     def visible(i: int, j: int) -> bool:
         r = min([radius, *(near[k] for k in (i, j) if k < 2)])
-        return not any(segment_hits(nodes[i], nodes[j], T, size, r) for T, size in rects)
+        return not any(_hits(f, pts[i], pts[j], r) for f in flat)
 
     # Dijkstra from the start (node 0) to the goal (node 1), edges tested when first relaxed
     dist, prev, done = {0: 0.0}, {0: -1}, set()
@@ -129,7 +171,7 @@ def detour(start: FloatArray, goal: FloatArray, rects: Sequence[Footprint], radi
         for j in range(len(nodes)):
             if j in done:
                 continue
-            nd = d + math.dist(nodes[i], nodes[j])
+            nd = d + math.dist(pts[i], pts[j])
             if nd < dist.get(j, math.inf) and visible(i, j):
                 dist[j], prev[j] = nd, i
                 heapq.heappush(heap, (nd, j))
