@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning.detour import Footprint, detour, rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.hand import (
@@ -38,6 +41,7 @@ from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
 from rlgp_exec.planning.validate import Phase, validate_with_fallbacks
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
+from rlgp_exec.reach.ik import base_circles
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
@@ -47,7 +51,11 @@ __all__ = ["APPROACH", "SequenceGeometry"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
 DRIVE_ROUND_TIMEOUT = 2.0  # [s] OMPL's time for a base-only path round an obstacle (the last resort)
+GRAPH_SEEDS = 24  # keyframe seeds per hand target (the NLP starts from the nearest 8 first: keyframes.SEEDS_NEAR)
 RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
+DETOUR_MARGIN = 0.03  # [m] a detour keeps the base's enclosing circle this much further off the footprints
+TUCK_IN, TUCK_UP = 0.15, 0.10  # [m] a detour's tucked posture moves the hand this far in towards the base and up
+DETOUR_SLACK = 0.005  # [m] backing out of the footprints' reach goes this much past it
 
 log = logging.getLogger(__name__)
 
@@ -154,6 +162,30 @@ class SequenceGeometry:
                 chain.append(q)
         return None if not chain or self.checker(chain[-1]) else chain
 
+    def _tucked(self, q: FloatArray, arm: FloatArray) -> FloatArray | None:
+        """q with the hand moved by differential IK on the joints ``arm`` (indices into q) TUCK_IN [m]
+        towards the base's vertical axis and TUCK_UP [m] up, without turning (a held object keeps its
+        attitude): a carrying posture that keeps a held object over the robot's side of a table and
+        above the objects standing on it. 1 cm steps, each joint held at its limit once it reaches it;
+        None if a step penetrates, q collides at the end, or the hand gets less than half way."""
+        lo, hi = self.model.limits.lower[arm], self.model.limits.upper[arm]
+        start = self.model.fk(q, self.tool)[:3, 3]
+        inward = np.r_[q[:2] - start[:2], 0.0]
+        norm = float(np.linalg.norm(inward))
+        goal = start + np.r_[0.0, 0.0, TUCK_UP] + (TUCK_IN * inward / norm if norm > 1e-9 else 0.0)
+        out = q.copy()
+        for _ in range(round(float(np.linalg.norm(goal - start)) / 0.01)):
+            err = goal - self.model.fk(out, self.tool)[:3, 3]
+            step = err * min(1.0, 0.01 / max(float(np.linalg.norm(err)), 1e-9))
+            J = self.model.jacobian(out, self.tool)[:, arm]
+            dq = np.linalg.lstsq(J, np.r_[step, 0.0, 0.0, 0.0], rcond=1e-6)[0]
+            out = out.copy()
+            out[arm] = np.clip(out[arm] + dq, lo, hi)
+            if self.checker.penetrates(out):
+                return None
+        moved = float(np.linalg.norm(self.model.fk(out, self.tool)[:3, 3] - start))
+        return None if moved < 0.5 * float(np.linalg.norm(goal - start)) or self.checker(out) else out
+
     def _transport(self, q1: FloatArray, q2: FloatArray) -> FloatArray | None:
         """The transport posture: raise the lift to the top, move to the other end's posture, lower it;
         None if every variant is blocked. Variants, each of straight motions checked exactly (with the
@@ -163,7 +195,8 @@ class SequenceGeometry:
         first, then move the arm; turn the base on the spot to the other end's heading, then drive
         (or drive, then turn; or back off, turn, drive, come in); with an empty hand, fold the arm
         (the home posture), drive, unfold (the checks do not cover a held object against the robot's
-        own body). A verdict on a configuration or motion that variants share is computed once."""
+        own body); when a footprint is in the way of the straight drive, drive round the fixtures
+        (``_round_variants``). A verdict on a configuration or motion that variants share is computed once."""
         lifts = [n for n in ("arm_lift_joint", "torso_lift_joint") if n in self.model.joint_names]
         if not lifts:
             return None
@@ -197,13 +230,86 @@ class SequenceGeometry:
         ]
         if self.checker.attached is None:  # folded, a held object could reach into the body (unchecked)
             variants.append([a, fold_a, fold_b, b])
-        for mid in variants:
+        for mid in itertools.chain(variants, self._round_variants(a, b, arm, fold_a)):
             path = [q1, *mid, q2]
             if all(self._free(verdicts, q) for q in mid[1:-1]) and all(
                 self._free(verdicts, u, v) for u, v in itertools.pairwise(path)
             ):
                 return np.array(path)
         return None
+
+    def _footprints(self) -> list[Footprint]:
+        """The footprints the base keeps off: the fixtures', and each drawer out at the checker's opening."""
+        rects: list[Footprint] = [(fx.T, np.asarray(fx.size)) for fx in self.scene.fixtures]
+        rects += [(v.T_world_drawer(self.checker.openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
+                  for c, v in self.drawers.items() if self.checker.openings.get(c, 0.0) > 0.0]
+        return rects
+
+    def _clear_of(self, q: FloatArray, rects: list[Footprint], radius: float) -> FloatArray | None:
+        """q with its base backed straight out (heading kept) until its position is ``radius`` [m] off
+        every footprint in ``rects`` (at most three pushes, each away from the nearest one); None if
+        that fails."""
+        out = q.copy()
+        for _ in range(3):
+            d, k = min((rect_distance(out[:2], T, size), k) for k, (T, size) in enumerate(rects))
+            if d >= radius:
+                return out
+            T, size = rects[k]
+            local = T[:2, :2].T @ (out[:2] - T[:2, 3])
+            half = np.asarray(size[:2]) / 2
+            nearest = np.clip(local, -half, half)
+            if d < 1e-9:  # inside: out across the nearest side
+                return None
+            out[:2] += (T[:2, :2] @ (local - nearest)) / d * (radius - d + DETOUR_SLACK)
+        return out if all(rect_distance(out[:2], T, size) >= radius for T, size in rects) else None
+
+    def _drive_postures(self, a: FloatArray, b: FloatArray, arm: FloatArray, fold: FloatArray) -> Iterator[FloatArray]:
+        """Postures (over the joints ``arm``) for a detour, made as they are asked for: a's, b's, folded
+        (``fold``'s; empty hand only: the checks do not cover a held object against the body), then
+        either end's with the hand tucked in and up (``_tucked``: a held object over the robot's side
+        of a table, above the objects on it)."""
+        yield a[arm]
+        yield b[arm]
+        if self.checker.attached is None:
+            yield fold[arm]
+        for q in (a, b):
+            tucked = self._tucked(q, arm)
+            if tucked is not None:
+                yield tucked[arm]
+
+    def _round_variants(self, a: FloatArray, b: FloatArray, arm: FloatArray, fold: FloatArray) -> Iterator[list]:
+        """Transport variants that drive round the fixtures when a footprint blocks the straight drive
+        (``detour``: the base's enclosing circle plus DETOUR_MARGIN kept off every footprint, or, next
+        to an end, as far off as that end is), one posture (``_drive_postures``) after the other: the
+        posture taken at a, the detour's corners driven (the heading turning from a's to b's in
+        proportion to the distance driven), b's posture taken at b; else the same from and to the ends
+        backed out of the footprints' reach (heading kept), the posture taken on the way out and left
+        on the way in, or taken once out and left before coming in. None when no footprint is in the way."""
+        rects = self._footprints()
+        if not rects:
+            return
+        radius = max(math.hypot(cx, cy) + r for cx, cy, r in base_circles(self.model)) + DETOUR_MARGIN
+        out_a, out_b = self._clear_of(a, rects, radius), self._clear_of(b, rects, radius)
+        routes = []
+        for qa, qb in ((a, b), (out_a, out_b)):
+            xy = None if qa is None or qb is None else detour(qa[:2], qb[:2], rects, radius)
+            if xy is not None and len(xy) > 2:  # a straight drive is the variants' before these
+                s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
+                routes.append((qa, qb, xy, s / s[-1]))
+        if not routes:
+            return
+        turn = float(self.model.limits.difference(b, a)[2])
+        for posture in self._drive_postures(a, b, arm, fold):
+            for qa, qb, xy, s in routes:
+                drive = []
+                for k, (x, y) in enumerate(xy):
+                    q = a.copy()
+                    q[arm] = posture
+                    q[0], q[1], q[2] = x, y, a[2] + s[k] * turn
+                    drive.append(q)
+                chains = [[a, *drive, b]] + ([[a, qa, *drive, qb, b]] if qa is not a else [])
+                for chain in chains:
+                    yield [q for k, q in enumerate(chain) if k == 0 or not np.array_equal(q, chain[k - 1])]
 
     def _away(self, xy: FloatArray) -> FloatArray:
         """Unit vector (2,) in the world plane from the nearest point of the nearest fixture footprint
@@ -247,8 +353,9 @@ class SequenceGeometry:
         return replace(result, reason=" / ".join(reasons))
 
     def _graph_seeds(self, x: FloatArray) -> list[FloatArray]:
-        """Keyframe seeds for a hand target x: the graph's nearest nodes (collision-free, reaching near x)."""
-        return self.rg.node_seeds(x, 8)
+        """Keyframe seeds for a hand target x: the graph's GRAPH_SEEDS nearest nodes (collision-free,
+        reaching near x, nearest first; ``keyframes._graph_seed`` chooses among them)."""
+        return self.rg.node_seeds(x, GRAPH_SEEDS)
 
     def _along_axis(self, q: FloatArray, cabinet: str, distance: float) -> FloatArray:
         """q with the base moved ``distance`` [m] along the cabinet's opening axis (out of it if > 0)."""
