@@ -339,8 +339,10 @@ def optimize_paths(
     idx = np.array([*core, *extra], dtype=int)
     n = len(idx)
     w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
-    self_rows = self_rows_function(model, manip.name, extra, segments[0].warm[0], self_spheres, body)
-    blocks = [_block(model, manip, idx, extra, seg, T, hand, self_rows) for seg in segments]
+    # per segment: the other joints (another arm's posture) where its warm start has them
+    blocks = [_block(model, manip, idx, extra, seg, T, hand,
+                     self_rows_function(model, manip.name, extra, seg.warm[0], self_spheres, body))
+              for seg in segments]
     rows_s = time.perf_counter() - t0
     warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
     build_s, solve_s = rows_s, 0.0
