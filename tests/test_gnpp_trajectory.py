@@ -186,3 +186,25 @@ def test_an_idle_arms_move_home_that_sweeps_through_a_block_is_optimised_clear_o
     np.testing.assert_allclose(path[[0, -1]], straight.path, atol=1e-9)
     after = validate_plan(replay, out)
     assert after.collision_free, after.collisions
+
+
+def test_a_strict_straight_move_clear_of_every_box_is_its_own_optimum(straight_through_a_box):
+    """A straight move (zero acceleration: the objective's least) that clears every row at every checkpoint
+    is left out of the NLP and kept as it is; in one call with a move that needs a detour, only that one
+    is optimised."""
+    model, warm, box = straight_through_a_box
+    aside = dataclasses.replace(box, T=box.T @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, -0.3], [0, 0, 0, 1.0]]))
+    T = trajectory.T_TRAJ
+    clear = level3.Segment(warm, (aside,), fix_base=True, strict=True)
+    res = level3.optimize_paths(model, [clear], T, manipulator="right_arm")
+    assert res.ok and res.iterations == 0 and res.n_var == 0, res
+    line = warm[0] + np.linspace(0.0, 1.0, T)[:, None] * (warm[1] - warm[0])
+    np.testing.assert_allclose(res.paths[0], line, atol=1e-9)
+    assert _clearance(model, res.paths[0], aside) >= level3.MARGIN
+    through = level3.Segment(warm, (box,), fix_base=True, strict=True)
+    both = level3.optimize_paths(model, [clear, through], T, manipulator="right_arm")
+    alone = level3.optimize_paths(model, [through], T, manipulator="right_arm")
+    assert both.ok and both.iterations > 0 and both.n_var == alone.n_var
+    np.testing.assert_allclose(both.paths[0], line, atol=1e-9)
+    np.testing.assert_allclose(both.paths[1], alone.paths[0], atol=1e-6)
+    assert _clearance(model, both.paths[1], box) >= level3.MARGIN - 2e-3
