@@ -152,14 +152,15 @@ def _held_spheres(held: tuple[FloatArray, FloatArray] | None) -> list[tuple[Floa
     return [((T_tool_obj @ np.r_[c, 1.0])[:3], r) for c, r in _box_cover(np.asarray(size, float))]
 
 
-def _rows(model, manip, extra, seg: Segment, z: ca.SX, hand, self_rows: tuple[ca.Function, FloatArray]) -> Rows:
-    """Every collision row of one waypoint of ``seg`` (z symbolic: base, arm, the ``extra`` joints)."""
-    rs = RobotSymbols(model, seg.warm[0], manip.name, z, extra)
+def _rows(model, rs: RobotSymbols, seg: Segment, hand, self_rows: tuple[ca.SX, FloatArray]) -> Rows:
+    """Every collision row of one waypoint of ``seg`` (``rs``: the robot at the symbolic z = base, arm, the
+    ``extra`` joints, the other joints where ``seg.warm[0]`` has them; ``self_rows``: its self-clearance
+    rows at z and their lower bounds)."""
     rows = Rows.empty()
     boxes = _near(model, rs, seg)
     box_clear(rs, boxes, rows, margin=MARGIN)
     points_clear(rs.T_tool, [*hand, *_held_spheres(seg.held)], boxes, rows, margin=MARGIN)
-    rows.add_all(self_rows[0](z), self_rows[1], ca.inf)
+    rows.add_all(self_rows[0], self_rows[1], ca.inf)
     footprint_clear(rs, list(seg.footprints), rows, margin=BASE_MARGIN)
     return rows
 
@@ -210,14 +211,14 @@ def _checkpoints(Z: FloatArray) -> FloatArray:
     return out
 
 
-def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
+def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, seg, T, hand) -> _Block:
     """Resample ``seg``'s warm start and build its rows; keep those near active (module docstring)."""
     n = len(idx)
     zs = _unwrapped(model, idx, seg.warm)
     vmax = model.limits.velocity[idx]
     Zw, tau = resample(zs, vmax, T)
-    z, zp = ca.SX.sym("z", n), ca.SX.sym("zp", n)
-    rows = _rows(model, manip, extra, seg, z, hand, self_rows)
+    z, zp = rs.z, ca.SX.sym("zp", n)
+    rows = _rows(model, rs, seg, hand, self_rows)
     g_all = ca.Function("g_all", [z], [ca.vertcat(*rows.g)] if rows.g else [ca.SX(0, 1)])
     lb_all = np.asarray(rows.lower, float)
     lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
@@ -351,10 +352,22 @@ def optimize_paths(
     idx = np.array([*core, *extra], dtype=int)
     n = len(idx)
     w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
-    # per segment: the other joints (another arm's posture) where its warm start has them
-    blocks = [_block(model, manip, idx, extra, seg, T, hand,
-                     self_rows_function(model, manip.name, extra, seg.warm[0], self_spheres, body))
-              for seg in segments]
+    # per segment: the other joints (another arm's posture) where its warm start has them. The robot's
+    # symbols at z and its self-clearance rows (forward kinematics, ~200 rows on the PR2: ~20 ms a
+    # segment) are built once for the segments that agree on those joints
+    z = ca.SX.sym("z", n)
+    shared: dict[bytes, tuple[RobotSymbols, tuple[ca.SX, FloatArray]]] = {}
+
+    def shared_of(q0: FloatArray) -> tuple[RobotSymbols, tuple[ca.SX, FloatArray]]:
+        fixed = np.array(q0, float)
+        fixed[idx] = 0.0
+        key = fixed.tobytes()
+        if key not in shared:
+            fn, lower = self_rows_function(model, manip.name, extra, q0, self_spheres, body)
+            shared[key] = (RobotSymbols(model, q0, manip.name, z, extra), (fn(z), lower))
+        return shared[key]
+
+    blocks = [_block(model, *shared_of(seg.warm[0]), idx, seg, T, hand) for seg in segments]
     rows_s = time.perf_counter() - t0
     warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
     active = [b for b in blocks if not b.settled]  # the rest are optimal as they are (``_Block.settled``)
