@@ -509,27 +509,6 @@ def test_a_feasible_plan_is_solved_whole_at_the_tightest_relaxations(pr2):
     assert [len(fs) for fs in solved if tight(fs)] == [len(c) for c in comps]
 
 
-def test_a_subgraph_its_start_satisfies_is_answered_without_ipopt(pr2):
-    """A start that satisfies every factor is a feasible point (what IPOPT, minimising the distance to it,
-    would return): no IPOPT call, the start as the values; a start that does not goes to IPOPT."""
-    scene = _tower(["b1", "b2"], ["(on b1 goal_region)", "(on b2 b1)"])
-    lib = FactorLib(pr2, scene)
-    task = add_flags(ground_scene(scene, manipulators=list(lib.arms)))
-    plan = [GroundAction.parse(a) for a in ("(pick left_arm b1 table)", "(place left_arm b1 goal_region)")]
-    states = task.simulate(plan)
-    graph = relax(factors_of(states, lib.arms, ["b1", "b2"]), Relaxation.NO_COL)
-    guess = initial_guess(lib, TopIK(lib), states, variables(graph))
-    solver = GraphSolver(lib)
-    off = {v: (x + 0.2 if v.kind == "q" else x) for v, x in guess.items()}  # every arm variable moved
-    first = solver.solve(graph, off)
-    assert first.feasible and solver.n_at_start == 0 and len(solver.iters) == 1 and solver.iters[0] > 0
-    again = solver.solve(graph, first.values)
-    assert again.feasible and solver.n_at_start == 1 and len(solver.iters) == 1  # no IPOPT call
-    assert solver.n_solves == 2 and max(again.violations) <= 1e-4
-    for v, x in again.values.items():
-        np.testing.assert_allclose(x, first.values[v], atol=1e-12)
-
-
 def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2):
     """``IK_MAX_ITER`` cuts the hopeless starts short: a reachable top grasp converges in under half the
     limit (the margin it was set with), a point out of reach is reported so after at most the limit

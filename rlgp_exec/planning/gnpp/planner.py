@@ -163,7 +163,6 @@ def plan_gnpp(
             "n0": n0,
             "n": len(plan.actions) if plan is not None and plan.success else None,
             "nlp": solver.n_solves,
-            "nlp_at_start": solver.n_at_start,  # of them feasible at their start (no IPOPT iteration needed)
             "db_hits": db.hits if db is not None else 0,
             "conflicts": len(found),
             "blocked_plans": blocked_plans,

@@ -109,8 +109,7 @@ class SolveResult:
 
 @dataclass
 class _Built:
-    nlp: dict | None  # the NLP's symbols {x, p, f, g}; None: every variable pinned (nothing for IPOPT to do)
-    opts: dict  # IPOPT's options for it
+    solver: ca.Function | None  # None: every variable pinned (nothing for IPOPT to do)
     g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
     lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
     ubg: FloatArray
@@ -118,21 +117,6 @@ class _Built:
     hi_all: FloatArray
     rows: list[tuple[int, int]]  # per input factor: its row range in ``g_fn``
     pre: Presolved
-    solver: ca.Function | None = None  # IPOPT on ``nlp``, built the first time a start is not feasible
-
-    def ipopt(self) -> ca.Function:
-        """The IPOPT solver of ``nlp`` (built once: ~5-7 ms, most of a small structure's build)."""
-        if self.solver is None:
-            self.solver = ca.nlpsol("graph_nlp", "ipopt", self.nlp, self.opts)
-        return self.solver
-
-    def violations(self, xs: FloatArray) -> tuple[float, ...]:
-        """Per input factor: its largest row violation at the free variables ``xs`` [m or rad] (inf where
-        a row is not finite)."""
-        g = np.asarray(self.g_fn(xs)).reshape(-1)
-        over = np.maximum(np.maximum(self.lo_all - g, g - self.hi_all), 0.0)
-        over[~np.isfinite(g)] = np.inf
-        return tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in self.rows)
 
 
 class GraphSolver:
@@ -148,7 +132,6 @@ class GraphSolver:
         #: to a top grasp from few random starts)
         self.seeder: Callable[[Sequence[Factor], Mapping[Var, FloatArray]], Mapping[Var, FloatArray]] | None = None
         self.n_solves = 0
-        self.n_at_start = 0  # of them answered "feasible" by their start (every factor satisfied there)
         self.solve_time_s = 0.0
         self.thorough = False  # IPOPT without ``SEARCH`` (``refute`` sets it)
         self._cache: dict[tuple, _Built] = {}
@@ -187,11 +170,14 @@ class GraphSolver:
         g = ca.vertcat(*[gs[k] for k in pre.kept])
         lbg = np.concatenate([lo[k] for k in pre.kept]) if pre.kept else np.zeros(0)
         ubg = np.concatenate([hi[k] for k in pre.kept]) if pre.kept else np.zeros(0)
-        nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g} if pre.free else None
-        search = not self.thorough and any(v.kind == "q" for v in order)
-        opts = {**IPOPT, **(SEARCH if search else {}), **_limits(len(factors))}
+        solver = None
+        if pre.free:
+            nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
+            search = not self.thorough and any(v.kind == "q" for v in order)
+            opts = {**IPOPT, **(SEARCH if search else {}), **_limits(len(factors))}
+            solver = ca.nlpsol("graph_nlp", "ipopt", nlp, opts)
         g_fn = ca.Function("g", [x], [g_all])
-        return _Built(nlp, opts, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
+        return _Built(solver, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
 
     def refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = REFUTE_TRIES, seed: int = 0
@@ -286,18 +272,15 @@ class GraphSolver:
             starts += [np.concatenate([self._jittered(v, guess[v], rng) for v in free]) for _ in range(OBJECT_STARTS)]
         for x0 in starts:
             x0 = np.clip(x0, lbx, ubx)
-            # a start that satisfies every factor is a feasible point: IPOPT (min |x - x0|^2) would
-            # return it, after one iteration and its per-call set-up (half the search's solves)
-            xs, viol = x0, built.violations(x0)
-            if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
-                self.n_at_start += 1
-                break
-            if built.nlp is not None:
-                solver = built.ipopt()
-                res = solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
-                self.iters.append(int(solver.stats()["iter_count"]))
+            xs = x0
+            if built.solver is not None:
+                res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+                self.iters.append(int(built.solver.stats()["iter_count"]))
                 xs = np.asarray(res["x"]).reshape(-1)
-                viol = built.violations(xs)
+            g = np.asarray(built.g_fn(xs)).reshape(-1)
+            over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
+            over[~np.isfinite(g)] = np.inf
+            viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
             if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
                 break
         offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
