@@ -507,3 +507,26 @@ def test_a_feasible_plan_is_solved_whole_at_the_tightest_relaxations(pr2):
             comps.append(c)
     assert any(times_of(c)[1] > times_of(c)[0] for c in comps)  # window by window: several solves
     assert [len(fs) for fs in solved if tight(fs)] == [len(c) for c in comps]
+
+
+def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2):
+    """``IK_MAX_ITER`` cuts the hopeless starts short: a reachable top grasp converges in under half the
+    limit (the margin it was set with), a point out of reach is reported so after at most the limit
+    per start."""
+    from rlgp_exec.planning.gnpp.guess import IK_MAX_ITER, RESTARTS
+
+    scene = _tower(["b1", "b2", "b3"], ["(on b1 goal_region)"])
+    lib = FactorLib(pr2, scene)
+    ik = TopIK(lib)
+    iters: list[int] = []
+    for o, arm in (("b1", "left_arm"), ("b2", "right_arm"), ("b3", "right_arm")):
+        top = lib.start_pose(o)[:3] + np.array([0.0, 0.0, 0.0])  # the grasp point (2.5 cm below the top)
+        assert ik.solve(arm, top, lib.home_q(arm))[0], o
+        iters.append(int(ik._solvers[arm][0].stats()["iter_count"]))
+    assert max(iters) < IK_MAX_ITER / 2, iters
+    n0 = ik.n_solves
+    # b4's place at the back left, out of the right arm's reach (see b4_setup): its starts ran to IPOPT's
+    # default limit (100 iterations) or near it
+    ok, _ = ik.solve("right_arm", np.array([-0.35, 0.15, 0.745]), lib.home_q("right_arm"))
+    assert not ok and ik.n_solves - n0 == 2 + RESTARTS  # every start tried
+    assert ik._solvers["right_arm"][0].stats()["iter_count"] <= IK_MAX_ITER

@@ -6,10 +6,12 @@ import itertools
 from dataclasses import replace
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
 from rlgp_exec.planning.nlp import path as level3
+from rlgp_exec.planning.nlp.factors import RobotSymbols
 from rlgp_exec.planning.nlp.keyframes import W_BASE, Action
 from rlgp_exec.reach.ik import arm_spheres
 from rlgp_exec.scene import load_scene
@@ -125,8 +127,10 @@ def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
     manip = model.manipulator(None)
     idx = np.array([*model.group("base"), *model.group(manip.group)])
     w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
-    rows = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
-    blocks = [level3._block(model, manip, idx, (), seg, T, kw["hand"], rows) for seg in segments]
+    fn, lower = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
+    z = ca.SX.sym("z", len(idx))
+    rs = RobotSymbols(model, segments[0].warm[0], manip.name, z)
+    blocks = [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments]
     solver = level3._nlp(model, blocks, idx, w, T, 10)[0]
     x0 = np.concatenate([b.Zw[1:-1].reshape(-1) for b in blocks])
     rng = np.random.default_rng(0)

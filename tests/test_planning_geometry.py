@@ -748,3 +748,46 @@ def test_the_keyframe_proxy_catches_an_upper_arm_turned_into_the_chest_or_the_ot
         assert missed_behind_only > 0
     finally:
         geo.close()
+
+
+def test_self_clear_rows_equal_the_per_sphere_per_box_formula():
+    """``self_clear`` (built box by box, all spheres at once) gives, row for row, the values and bounds of
+    the sphere-by-box formula: each arm sphere's centre in each body box's frame, its ``box_sdf``, bound
+    radius + margin; sphere by sphere, each over every box (PR2 right arm against its trunk and the other
+    arm, random configurations)."""
+    import pybullet as p
+
+    from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
+    from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, other_arm_obstacles, self_clear
+    from rlgp_exec.reach.ik import box_sdf
+    from rlgp_exec.robot.pybullet_body import PyBulletRobot
+
+    model = load_robot("pr2")
+    q0 = model.home()
+    client = p.connect(p.DIRECT)
+    try:
+        robot = PyBulletRobot(model, client)
+        body = body_obstacles(robot, model, q0, "right_arm") + other_arm_obstacles(robot, model, q0, "right_arm")
+    finally:
+        p.disconnect(client)
+    spheres = arm_link_spheres(model, "right_arm")
+    z = ca.SX.sym("z", len(model.group("base")) + len(model.group(model.manipulator("right_arm").group)))
+    rs = RobotSymbols(model, q0, "right_arm", z)
+    got = Rows.empty()
+    self_clear(model, rs.q, list(spheres), list(body), got, margin=0.013)
+    frames = tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
+    Ts = dict(zip(frames, model.casadi_fk(frames)(rs.q), strict=True))
+    ref = Rows.empty()
+    for f, c, r in spheres:
+        pw = Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3]
+        for bf, b in body:
+            pb = Ts[bf][:3, :3].T @ (pw - Ts[bf][:3, 3])
+            Tinv = np.linalg.inv(b.T)
+            ref.add(box_sdf(ca.DM(Tinv[:3, :3]) @ pb + ca.DM(Tinv[:3, 3]), np.asarray(b.size) / 2), r + 0.013, ca.inf)
+    assert len(got.g) == len(ref.g) == len(spheres) * len(body) > 0
+    assert got.lower == ref.lower and got.upper == ref.upper
+    f_got, f_ref = (ca.Function("g", [z], [ca.vertcat(*rows.g)]) for rows in (got, ref))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        zv = rng.uniform(-1.5, 1.5, z.numel())
+        np.testing.assert_allclose(np.asarray(f_got(zv)), np.asarray(f_ref(zv)), rtol=0, atol=1e-12)

@@ -10,7 +10,9 @@ release). A mobile arm's ``end-move`` is the drive to the base of the next keyfr
 raised), the base straight if that motion is free, else round the fixtures by OMPL on the base alone,
 each motion checked in PyBullet with the resting objects and the held one (``reach.ompl_plan.drive_base``,
 as R-LGP drives). Each acting arm's move to its approach configuration is also returned as a
-``Transit``: the straight motion the paper's trajectory stage re-optimises (``gnpp.trajectory``).
+``Transit``: the straight motion the paper's trajectory stage re-optimises (``gnpp.trajectory``); so is
+each idle arm's move home (``Transit.home``): a straight joint move from above what it just let go of or
+picked can sweep its fingers, or the object it holds, through a block (seen in the replay on tower_pr2).
 """
 
 from __future__ import annotations
@@ -37,15 +39,16 @@ DRIVE_TIMEOUT = 2.0  # [s] OMPL's time for a base path round the fixtures (per p
 
 
 class Transit(NamedTuple):
-    """An acting arm's straight move between two rows of a phase's path (``row`` -> ``row + 1``): from
-    where the plan left it to ``LIFT`` above its next keyframe; the other arms are at their start
-    postures meanwhile."""
+    """An arm's straight move between two rows of a phase's path (``row`` -> ``row + 1``): an acting arm's
+    from where the plan left it to ``LIFT`` above its next keyframe, or (``home``) an idle arm's from
+    ``LIFT`` above its last keyframe to its start posture; the other arms stand still meanwhile."""
 
     phase: int  # index into the phases
     row: int  # the move's first row in the phase's path
     arm: str
     held: tuple[str, FloatArray] | None  # (object, T_tool_obj (4, 4)) the arm carries
     resting: dict[str, FloatArray]  # the objects in no hand: world pose (4,) [x, y, z, yaw]
+    home: bool = False  # an idle arm's move to its start posture (out of the acting arm's way)
 
 
 def _straight_up(lib: FactorLib, arm: str, q: FloatArray) -> list[FloatArray] | None:
@@ -140,9 +143,19 @@ def phases_of(
     def full() -> FloatArray:
         return lib.full_q(cur)
 
-    def lift_low(path: list[FloatArray], active: str | None, where: str) -> str | None:
+    def grip_of(arm: str, k: int) -> tuple[str, FloatArray] | None:
+        """(object, T_tool_obj (4, 4)) ``arm`` holds before action ``k`` (0-based), None if empty."""
+        obj = holding.get(arm)
+        return None if obj is None else (obj, rel_T(values[Var("x", obj, k)], lib.upright(arm)))
+
+    def resting_at(k: int) -> dict[str, FloatArray]:
+        """The objects in no hand before action ``k`` (0-based): world pose (4,) [x, y, z, yaw]."""
+        return {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in lib.objects if o not in holding.values()}
+
+    def lift_low(path: list[FloatArray], active: str | None, where: str, k: int) -> str | None:
         """Raise every arm left down at its last keyframe (appending to ``path``); with an ``active`` arm
-        about to act, the other idle arms also go home. The reason on failure."""
+        about to act (action ``k``, 0-based), the other idle arms also go home, each move a ``Transit``
+        (``home``). The reason on failure."""
         for arm in arms:
             if low[arm]:
                 up = _lift(lib, ik, arm, cur[arm])
@@ -155,6 +168,7 @@ def phases_of(
             if active is not None and arm != active and not np.array_equal(cur[arm], lib.home_q(arm)):
                 # out of the active arm's way, with what it holds: the graph-NLP kept the arms apart
                 # at the keyframes only, not along the approach
+                transits.append(Transit(len(phases), len(path) - 1, arm, grip_of(arm, k), resting_at(k), home=True))
                 cur[arm] = lib.home_q(arm)
                 path.append(full())
         return None
@@ -165,7 +179,7 @@ def phases_of(
         if v not in values:
             return f"no keyframe for {a}"
         path = [full()]
-        why = lift_low(path, m, f"its last action (before {a})")
+        why = lift_low(path, m, f"its last action (before {a})", k)
         if why is not None:
             return why
         obj = holding.get(m)
@@ -205,7 +219,7 @@ def phases_of(
             phases.append(Phase(np.array(path), obj, release=obj, arm=m, carried=carried))
             holding.pop(m, None)
     path = [full()]
-    why = lift_low(path, None, "the last action")
+    why = lift_low(path, None, "the last action", len(actions))
     if why is not None:
         return why
     carried = tuple(holding.items())

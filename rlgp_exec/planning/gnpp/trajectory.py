@@ -5,10 +5,12 @@ to its next keyframe is warm-started as the linear interpolation between them an
 The NLP is the one R-LGP's level 3 solves (``nlp.path``, the same factors): acceleration cost, joint
 position and per-step velocity limits, the arm's spheres and the open hand (and a carried object, fixed
 in the tool frame: the kinematic switch) clear of the fixtures and of the resting objects where the
-graph-NLP put them, the arm clear of the trunk and of the other arm at its start posture (where
-``motion.phases_of`` sends it before this arm moves). One NLP per arm over all of its moves (block
-diagonal: the moves share no variable). The keyframes stay fixed: the paper's own remedy for long plans
-("fix the mode-switches and solve the trajectory of each step"), and a solved graph-NLP stays solved.
+graph-NLP put them, the arm clear of the trunk and of the other arm where that one stands meanwhile
+(``motion.phases_of``: at its start posture while this arm acts). An idle arm's move home is optimised
+too (``Transit.home``): straight, its fingers or what it holds can pass through a block. One NLP per arm
+over all of its moves (block diagonal: the moves share no variable). The keyframes stay fixed: the
+paper's own remedy for long plans ("fix the mode-switches and solve the trajectory of each step"), and a
+solved graph-NLP stays solved.
 A move the NLP cannot make feasible and no costlier keeps its straight motion; one the replay rejects
 goes back to it (``validate_with_fallbacks``).
 """
@@ -69,9 +71,10 @@ class Trajectories:
 
     def optimise(self, phases: Sequence[Phase], transits: Sequence[Transit]) -> tuple[list[Phase], dict[int, Phase]]:
         """The phases with every arm's moves optimised (those of an arm whose NLP failed unchanged), and
-        the original of each phase changed (the fallback for the replay). One move per phase at most
-        (``phases_of``'s). ``stats.acc_cost``: this plan's optimised moves (None if none was)."""
+        the original of each phase changed (the fallback for the replay). One move per arm and phase at
+        most (``phases_of``'s). ``stats.acc_cost``: this plan's optimised moves (None if none was)."""
         out, originals = list(phases), dict[int, Phase]()
+        done: list[tuple[Transit, np.ndarray]] = []  # (move, its optimised path (T, nq))
         acc: float | None = None
         warm_acc: float | None = None
         for arm in self.lib.arms:
@@ -91,10 +94,12 @@ class Trajectories:
             if not res.ok:
                 continue
             acc, warm_acc = (acc or 0.0) + res.acc_cost, (warm_acc or 0.0) + res.warm_acc_cost
-            for t, path in zip(mine, res.paths, strict=True):
-                ph = out[t.phase]
-                originals.setdefault(t.phase, phases[t.phase])
-                out[t.phase] = replace(ph, path=np.vstack([ph.path[:t.row], path, ph.path[t.row + 2:]]))
+            done += zip(mine, res.paths, strict=True)
+        # last rows first: a phase's earlier moves keep their row indices
+        for t, path in sorted(done, key=lambda tp: (tp[0].phase, tp[0].row), reverse=True):
+            ph = out[t.phase]
+            originals.setdefault(t.phase, phases[t.phase])
+            out[t.phase] = replace(ph, path=np.vstack([ph.path[:t.row], path, ph.path[t.row + 2:]]))
         self.stats = replace(self.stats, acc_cost=acc, warm_acc_cost=warm_acc)
         return out, originals
 

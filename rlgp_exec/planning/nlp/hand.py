@@ -324,20 +324,24 @@ def other_arm_obstacles(robot, model, q: FloatArray, manipulator: str | None = N
 
 def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],
                rows: Rows, margin: float = 0.01) -> None:
-    """The arm's spheres clear of the body's boxes (each box in its link's frame)."""
+    """The arm's spheres clear of the body's boxes (each box in its link's frame). Rows sphere by sphere,
+    each over every box; built box by box, all spheres at once (one product and one mapped ``box_sdf``
+    per box: ~0.1 s less per PR2 arm than sphere by box)."""
     if not spheres or not body:
         return
     frames = tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
     Ts = model.casadi_fk(frames)(q_sym)
     Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
-    for f, c, r in spheres:
-        pw = Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3]
-        for bf, b in body:
-            T_b = Ts[bf]
-            pb = T_b[:3, :3].T @ (pw - T_b[:3, 3])
-            Tinv = np.linalg.inv(b.T)
-            pl = ca.DM(Tinv[:3, :3]) @ pb + ca.DM(Tinv[:3, 3])
-            rows.add(box_sdf(pl, np.asarray(b.size) / 2), r + margin, ca.inf)
+    centres = ca.horzcat(*(Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3] for f, c, _ in spheres))  # (3, S) world
+    n = len(spheres)
+    per_box = []
+    for bf, b in body:
+        T_b = Ts[bf]
+        pb = T_b[:3, :3].T @ (centres - ca.repmat(T_b[:3, 3], 1, n))  # (3, S) in the body link's frame
+        Tinv = np.linalg.inv(b.T)
+        per_box.append(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ pb, Tinv[:3, 3], np.asarray(b.size) / 2))
+    # (boxes, spheres): column-major, sphere by sphere
+    rows.add_all(ca.vertcat(*per_box), np.repeat([r + margin for _, _, r in spheres], len(body)), ca.inf)
 
 
 _SELF_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {arguments: self_rows_function's}

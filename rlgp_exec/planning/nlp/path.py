@@ -159,14 +159,15 @@ def _held_spheres(held: tuple[FloatArray, FloatArray] | None) -> list[tuple[Floa
     return [((T_tool_obj @ np.r_[c, 1.0])[:3], r) for c, r in _box_cover(np.asarray(size, float))]
 
 
-def _rows(model, manip, extra, seg: Segment, z: ca.SX, hand, self_rows: tuple[ca.Function, FloatArray]) -> Rows:
-    """Every collision row of one waypoint of ``seg`` (z symbolic: base, arm, the ``extra`` joints)."""
-    rs = RobotSymbols(model, seg.warm[0], manip.name, z, extra)
+def _rows(model, rs: RobotSymbols, seg: Segment, hand, self_rows: tuple[ca.SX, FloatArray]) -> Rows:
+    """Every collision row of one waypoint of ``seg`` (``rs``: the robot at the symbolic z = base, arm, the
+    ``extra`` joints, the other joints where ``seg.warm[0]`` has them; ``self_rows``: its self-clearance
+    rows at z and their lower bounds)."""
     rows = Rows.empty()
     boxes = _near(model, rs, seg)
     box_clear(rs, boxes, rows, margin=MARGIN)
     points_clear(rs.T_tool, [*hand, *_held_spheres(seg.held)], boxes, rows, margin=MARGIN)
-    rows.add_all(self_rows[0](z), self_rows[1], ca.inf)
+    rows.add_all(self_rows[0], self_rows[1], ca.inf)
     footprint_clear(rs, list(seg.footprints), rows, margin=BASE_MARGIN)
     return rows
 
@@ -202,6 +203,9 @@ class _Block:
     lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
     # the warm start violates them)
     relaxed: int
+    # a strict segment whose warm start (a straight move, resampled: zero acceleration cost, the objective's
+    # least) satisfies every row at every checkpoint: that is the optimum, left out of the NLP
+    settled: bool = False
 
 
 def _checkpoints(Z: FloatArray) -> FloatArray:
@@ -214,14 +218,14 @@ def _checkpoints(Z: FloatArray) -> FloatArray:
     return out
 
 
-def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
+def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, seg, T, hand) -> _Block:
     """Resample ``seg``'s warm start and build its rows; keep those near active (module docstring)."""
     n = len(idx)
     zs = _unwrapped(model, idx, seg.warm)
     vmax = model.limits.velocity[idx]
     Zw, tau = resample(zs, vmax, T)
-    z, zp = ca.SX.sym("z", n), ca.SX.sym("zp", n)
-    rows = _rows(model, manip, extra, seg, z, hand, self_rows)
+    z, zp = rs.z, ca.SX.sym("zp", n)
+    rows = _rows(model, rs, seg, hand, self_rows)
     g_all = ca.Function("g_all", [z], [ca.vertcat(*rows.g)] if rows.g else [ca.SX(0, 1)])
     lb_all = np.asarray(rows.lower, float)
     lo, hi = model.limits.lower[idx].copy(), model.limits.upper[idx].copy()
@@ -247,7 +251,16 @@ def _block(model, manip, idx, extra, seg, T, hand, self_rows) -> _Block:
         else:  # per checkpoint: never below the warm start
             lb = np.minimum(lb_all[keep, None], vals[keep] - 1e-6)
         blk.keep, blk.lb, blk.relaxed = keep, lb, int(np.sum(lb < lb_all[keep, None]))
+    # the rows not kept clear their bounds by CUTOFF at the warm start's checkpoints (``low``)
+    clear = not len(lb_all) or bool(np.all(vals[blk.keep] >= blk.lb))
+    blk.settled = seg.strict and clear and _straight(Zw)
     return blk
+
+
+def _straight(Z: FloatArray) -> bool:
+    """Whether the path Z (T, n) has no acceleration: equal steps along one line [m or rad]."""
+    acc = Z[2:] - 2 * Z[1:-1] + Z[:-2]
+    return bool(np.all(np.abs(acc) <= 1e-9))
 
 
 def _selectors(n: int, m: int) -> tuple[ca.DM, ca.DM]:
@@ -348,16 +361,33 @@ def optimize_paths(
     idx = np.array([*core, *extra], dtype=int)
     n = len(idx)
     w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
-    self_rows = self_rows_function(model, manip.name, extra, segments[0].warm[0], self_spheres, body)
-    blocks = [_block(model, manip, idx, extra, seg, T, hand, self_rows) for seg in segments]
+    # per segment: the other joints (another arm's posture) where its warm start has them. The robot's
+    # symbols at z and its self-clearance rows (forward kinematics, ~200 rows on the PR2: ~20 ms a
+    # segment) are built once for the segments that agree on those joints
+    z = ca.SX.sym("z", n)
+    shared: dict[bytes, tuple[RobotSymbols, tuple[ca.SX, FloatArray]]] = {}
+
+    def shared_of(q0: FloatArray) -> tuple[RobotSymbols, tuple[ca.SX, FloatArray]]:
+        fixed = np.array(q0, float)
+        fixed[idx] = 0.0
+        key = fixed.tobytes()
+        if key not in shared:
+            fn, lower = self_rows_function(model, manip.name, extra, q0, self_spheres, body)
+            shared[key] = (RobotSymbols(model, q0, manip.name, z, extra), (fn(z), lower))
+        return shared[key]
+
+    blocks = [_block(model, *shared_of(seg.warm[0]), idx, seg, T, hand) for seg in segments]
     rows_s = time.perf_counter() - t0
     warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
+    active = [b for b in blocks if not b.settled]  # the rest are optimal as they are (``_Block.settled``)
     build_s, solve_s = rows_s, 0.0
-    iterations = 0
+    iterations, n_var, n_con, jac_nnz, viol, cost, why = 0, 0, 0, 0, 0.0, 0.0, ""
+    opt: dict[int, FloatArray] = {}  # id of an active block -> its optimised path (T, n)
     x_last = None
-    for rnd in range(ROUNDS):
+    for rnd in range(ROUNDS if active else 0):
         t1 = time.perf_counter()
-        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter, x_last is None)
+        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, active, idx, w, T, max_iter, x_last is None)
+        n_var, n_con = int(x.numel()), int(g.numel())
         jac_nnz = int(jac.sparsity().nnz())
         t2 = time.perf_counter()
         build_s += t2 - t1
@@ -367,14 +397,15 @@ def optimize_paths(
         xs = x_last = np.asarray(res["x"]).reshape(-1)
         gv = np.asarray(res["g"]).reshape(-1)
         viol = float(np.max(np.r_[lbg_a - gv, gv - ubg_a, 0.0]))
+        cost, why = float(res["f"]), solver.stats()["return_status"]
         # every row, also those left out, at the solution: add the violated ones and solve again
-        Zs, added, off = [], 0, 0
-        for b in blocks:
+        added, off = 0, 0
+        for b in active:
             Zi = np.clip(xs[off:off + n * (T - 2)].reshape(T - 2, n), b.lo, b.hi)  # IPOPT's bound relaxation
             off += n * (T - 2)
-            Zs.append(np.vstack([b.Zw[0], Zi, b.Zw[-1]]))
+            opt[id(b)] = np.vstack([b.Zw[0], Zi, b.Zw[-1]])
             if len(b.lb_all):
-                pts = _checkpoints(Zs[-1])
+                pts = _checkpoints(opt[id(b)])
                 vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
                 bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
                 if bad.size:
@@ -386,10 +417,10 @@ def optimize_paths(
             break
         log.debug("level 3 round %d (%d iterations): %d rows left out were violated; solving again", rnd,
                   solver.stats().get("iter_count", 0), added)
-    cost = float(res["f"])
+    cost += sum(_acc_cost(b.Zw.T, w) for b in blocks if b.settled)
+    Zs = [opt.get(id(b), b.Zw) for b in blocks]
     relaxed = sum(b.relaxed for b in blocks)
     if viol > FEAS_TOL:
-        why = solver.stats()["return_status"]
         status, reason = PathStatus.INFEASIBLE, f"constraints violated by {viol:.2e} ({why})"
     elif cost > warm_cost + 1e-9 and not any(seg.strict for seg in segments):
         status, reason = PathStatus.WORSE, f"acceleration cost {cost:.3g} > warm start's {warm_cost:.3g}"
@@ -401,6 +432,6 @@ def optimize_paths(
         q[:, idx] = Z
         paths.append(np.array([model.limits.wrap(qi) for qi in q]))
     return PathResult(
-        status, tuple(paths), cost, warm_cost, viol, tuple(b.dt * (T - 1) for b in blocks), int(x.numel()),
-        int(g.numel()), jac_nnz, relaxed, iterations, build_s, solve_s, reason,
+        status, tuple(paths), cost, warm_cost, viol, tuple(b.dt * (T - 1) for b in blocks), n_var, n_con, jac_nnz,
+        relaxed, iterations, build_s, solve_s, reason,
     )
