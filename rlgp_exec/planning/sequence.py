@@ -51,7 +51,6 @@ __all__ = ["APPROACH", "SequenceGeometry"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
 DRIVE_ROUND_TIMEOUT = 2.0  # [s] OMPL's time for a base-only path round an obstacle (the last resort)
-GRAPH_SEEDS = 24  # keyframe seeds per hand target (the NLP starts from the nearest 8 first: keyframes.SEEDS_NEAR)
 RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
 DETOUR_MARGIN = 0.03  # [m] a detour keeps the base's enclosing circle this much further off the footprints
 TUCK_IN, TUCK_UP = 0.15, 0.10  # [m] a detour's tucked posture moves the hand this far in towards the base and up
@@ -353,9 +352,8 @@ class SequenceGeometry:
         return replace(result, reason=" / ".join(reasons))
 
     def _graph_seeds(self, x: FloatArray) -> list[FloatArray]:
-        """Keyframe seeds for a hand target x: the graph's GRAPH_SEEDS nearest nodes (collision-free,
-        reaching near x, nearest first; ``keyframes._graph_seed`` chooses among them)."""
-        return self.rg.node_seeds(x, GRAPH_SEEDS)
+        """Keyframe seeds for a hand target x: the graph's nearest nodes (collision-free, reaching near x)."""
+        return self.rg.node_seeds(x, 8)
 
     def _along_axis(self, q: FloatArray, cabinet: str, distance: float) -> FloatArray:
         """q with the base moved ``distance`` [m] along the cabinet's opening axis (out of it if > 0)."""

@@ -29,7 +29,6 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import cpu_clock
-from rlgp_exec.planning.detour import segment_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
@@ -59,11 +58,6 @@ W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
-# graph seeds a keyframe starts from: the SEEDS_NEAR nearest its hand target, and further ones only where
-# each of those has its base across a table from the previous keyframe's (pick_place_pr2: a block in
-# the middle of the table had its 8 nearest seeds on the far side only, and the keyframe sent the base
-# round the table and back); seeds(x) gives more than SEEDS_NEAR
-SEEDS_NEAR = 8
 SEED_LOOKAHEAD = 4  # graph seeds looked at past an attempt's rank for one not tried at that keyframe yet
 SAME_SEED = 0.05  # [m, rad] an initial guess this close (every coordinate) to an earlier one is not tried again
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
@@ -145,23 +139,14 @@ def _free_heading(ik: ReachIK, x: FloatArray, rng: np.random.Generator, rects, t
 def _graph_seed(
     ik: ReachIK, x: FloatArray, seeds, rects, i: int, base_xy: FloatArray | None = None
 ) -> FloatArray | None:
-    """The i-th of ``seeds(x)`` (z (n,) near x, nearest first) whose base stands off the footprints in
-    ``rects`` (open drawers included): of the first SEEDS_NEAR, and, when each of those is across a
-    footprint from ``base_xy`` (2,) (the previous keyframe's base: the straight line between the bases
-    crosses it), the later ones that are not; ordered by their base's distance [m] to ``base_xy`` (a
-    keyframe on the near side of a table, not across it, keeps the guided path between them a straight
-    transport), else as ``seeds`` gives them; None when there are not that many."""
+    """The i-th of ``seeds(x)`` (z (n,) near x) whose base stands off the footprints in ``rects`` (open
+    drawers included), ordered by their base's distance [m] to ``base_xy`` (2,) (the previous
+    keyframe's base: a keyframe on the near side of a table, not across it, keeps the guided path
+    between them a straight transport), else as ``seeds`` gives them; None when there are not that many."""
     if seeds is None:
         return None
-    zs = seeds(x)
-    free = [z for z in (_push_free(ik, z0, rects) for z0 in zs[:SEEDS_NEAR]) if z is not None]
+    free = [z for z in (_push_free(ik, z0, rects) for z0 in seeds(x)) if z is not None]
     if base_xy is not None:
-        def across(z: FloatArray) -> bool:
-            return any(segment_distance(base_xy, z[:2], T, size) <= 0.0 for T, size in rects)
-
-        if all(across(z) for z in free):
-            later = (_push_free(ik, z0, rects) for z0 in zs[SEEDS_NEAR:])
-            free += [z for z in later if z is not None and not across(z)]
         free.sort(key=lambda z: float(np.linalg.norm(z[:2] - base_xy)))  # stable: ties keep the graph's order
     return free[i] if i < len(free) else None
 
