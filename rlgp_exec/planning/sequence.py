@@ -237,11 +237,11 @@ class SequenceGeometry:
                 return np.array(path)
         return None
 
-    def _footprints(self) -> list[Footprint]:
-        """The footprints the base keeps off: the fixtures', and each drawer out at the checker's opening."""
+    def _footprints(self, openings: dict[str, float]) -> list[Footprint]:
+        """The footprints the base keeps off: the fixtures', and each drawer out at ``openings`` [m]."""
         rects: list[Footprint] = [(fx.T, np.asarray(fx.size)) for fx in self.scene.fixtures]
-        rects += [(v.T_world_drawer(self.checker.openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
-                  for c, v in self.drawers.items() if self.checker.openings.get(c, 0.0) > 0.0]
+        rects += [(v.T_world_drawer(openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
+                  for c, v in self.drawers.items() if openings.get(c, 0.0) > 0.0]
         return rects
 
     def _clear_of(self, q: FloatArray, rects: list[Footprint], radius: float) -> FloatArray | None:
@@ -284,7 +284,7 @@ class SequenceGeometry:
         proportion to the distance driven), b's posture taken at b; else the same from and to the ends
         backed out of the footprints' reach (heading kept), the posture taken on the way out and left
         on the way in, or taken once out and left before coming in. None when no footprint is in the way."""
-        rects = self._footprints()
+        rects = self._footprints(self.checker.openings)
         if not rects:
             return
         radius = max(math.hypot(cx, cy) + r for cx, cy, r in base_circles(self.model)) + DETOUR_MARGIN
@@ -403,9 +403,7 @@ class SequenceGeometry:
         """Level 3's view of a guide: the world boxes (fixtures, drawers at their openings, the standing
         objects), the footprints the base avoids (fixtures, open drawers) and the held object."""
         drawer_bx = [b for c, v in self.drawers.items() for b in v.boxes(g.openings[c])]
-        rects = [(fx.T, np.asarray(fx.size)) for fx in self.scene.fixtures]
-        rects += [(v.T_world_drawer(g.openings[c]), np.asarray(v.geometry.inner_box.size) + 2 * PANEL)
-                  for c, v in self.drawers.items() if g.openings[c] > 0.0]
+        rects = self._footprints(g.openings)
         boxes = [b for fx in self.scene.fixtures for b in fixture_boxes(fx)] + drawer_bx + list(g.objects)
         held = None if g.held is None else (np.asarray(self.scene.object(g.held).size), g.T_tool_obj)
         return Segment(g.path, tuple(boxes), tuple(rects), held)

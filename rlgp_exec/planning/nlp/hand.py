@@ -238,8 +238,7 @@ def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) 
     (the HSR's base; a box beside them is the column the arm rides along, left out), else its PyBullet
     bounding box at ``q`` (a mesh: the PR2's torso)."""
     m = model.manipulator(manipulator)
-    first = robot.joint_index[model.joint_names[model.group(m.group)[0]]]
-    parent = robot.link_name.get(p.getJointInfo(robot.id, first, physicsClientId=robot.client)[16], "base_link")
+    parent = _mount_link(robot, model, m.group)
     cyl = _urdf_cylinders(model).get(parent, [])
     if cyl:
         return [(parent, Box("body", (2 * r, 2 * r, length), T, (0.0, 0.0, 0.0, 1.0))) for T, r, length in cyl]
@@ -247,6 +246,12 @@ def body_obstacles(robot, model, q: FloatArray, manipulator: str | None = None) 
     # the shoulders are mounted on the box's front: keep only what lies SHOULDER_SETBACK behind them
     hi_l[0] = min(hi_l[0], float(shoulder[0]) - SHOULDER_SETBACK)
     return [(parent, _bounds_box("body", lo_l, hi_l))]
+
+
+def _mount_link(robot, model, group: str) -> str:
+    """The link the first joint of ``group`` is mounted on (its PyBullet parent)."""
+    first = robot.joint_index[model.joint_names[model.group(group)[0]]]
+    return robot.link_name.get(p.getJointInfo(robot.id, first, physicsClientId=robot.client)[16], "base_link")
 
 
 def _body_bounds(robot, model, q: FloatArray, group: str, parent: str) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -264,8 +269,7 @@ def inner_obstacles(robot, model, q: FloatArray, manipulator: str | None = None)
     16 lost keyframe starts to an upper arm 0.7-1.6 cm into the torso's mesh and 2.2 cm into the tucked
     left shoulder (the shoulder pan at its inner limit). Empty for a body of cylinders (the HSR)."""
     m = model.manipulator(manipulator)
-    first = robot.joint_index[model.joint_names[model.group(m.group)[0]]]
-    parent = robot.link_name.get(p.getJointInfo(robot.id, first, physicsClientId=robot.client)[16], "base_link")
+    parent = _mount_link(robot, model, m.group)
     if _urdf_cylinders(model).get(parent):
         return []
     lo_l, hi_l, shoulder = _body_bounds(robot, model, q, m.group, parent)

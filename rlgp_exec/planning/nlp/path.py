@@ -75,7 +75,7 @@ TOL = 1e-3
 # seeds 1-5, 7-9 replayed: 478 -> 425 iterations in all (median 27.5 -> 25.5), every optimum the same to 4
 # digits; a smaller mu_init as well found lower optima but took up to 62 iterations where 38 did. A re-solve
 # (rows added that the last solution violates) starts with IPOPT's default push: from that solution, close
-# to its active rows, sorting_pr2 seed 8 took 63 iterations against 23
+# to its active rows, the small push took sorting_pr2 seed 8's re-solve 63 iterations against 28
 BOUND_PUSH = 1e-6
 
 
