@@ -145,17 +145,47 @@ def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
         assert got == pytest.approx(want, rel=1e-9, abs=1e-9)
 
 
+def _blocks(model, segments, T, kw):
+    """Level 3's blocks of ``segments`` (fresh: a solve adds rows to them), with idx and the weights."""
+    manip = model.manipulator(None)
+    idx = np.array([*model.group("base"), *model.group(manip.group)])
+    w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
+    fn, lower = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
+    z = ca.SX.sym("z", len(idx))
+    rs = RobotSymbols(model, segments[0].warm[0], manip.name, z)
+    return [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments], idx, w
+
+
 def test_level3_jacobian_grows_linearly_with_the_number_of_segments(planned):
+    """The NLP of k segments (``_nlp``, assembled from their structure) has k times one segment's variables,
+    rows and Jacobian non-zeros."""
     model, _, (segments, T, kw, _) = planned
-    seg = segments[0]
+    blocks, idx, w = _blocks(model, segments[:1], T, kw)
     sizes = {}
     for k in (1, 2, 4):
-        r = level3.optimize_paths(model, [seg] * k, T, max_iter=1, **kw)
-        sizes[k] = (r.n_var, r.n_con, r.jac_nnz)
+        _, x, g, jac, *_ = level3._nlp(model, blocks * k, idx, w, T, 1)
+        sizes[k] = (x.numel(), g.numel(), jac.sparsity().nnz())
     n1 = np.array(sizes[1])
     assert n1.min() > 0
     assert np.array_equal(np.array(sizes[2]), 2 * n1)
     assert np.array_equal(np.array(sizes[4]), 4 * n1)
+
+
+def test_level3_segment_by_segment_is_the_whole_path_optimum(planned):
+    """The segments share no variable: solving each alone (as ``optimize_paths`` does) finds the optimum
+    of the whole-path NLP over all of them."""
+    model, _, (segments, T, kw, _) = planned
+    assert len(segments) >= 2
+    blocks, idx, w = _blocks(model, segments, T, kw)
+    joint = level3._solve(model, blocks, idx, w, T, 200)
+    blocks, idx, w = _blocks(model, segments, T, kw)
+    alone = [level3._solve(model, [b], idx, w, T, 200) for b in blocks]
+    assert joint.violation <= level3.FEAS_TOL and all(a.violation <= level3.FEAS_TOL for a in alone)
+    # to IPOPT's tolerance (level3.TOL): its iterates, and where it stops, differ
+    assert sum(a.cost for a in alone) == pytest.approx(joint.cost, rel=1e-2)
+    for Z_joint, a in zip(joint.paths.values(), alone, strict=True):
+        (Z_alone,) = a.paths.values()
+        assert np.abs(Z_joint - Z_alone).max() < 1e-2
 
 
 def test_a_level3_path_that_collides_in_the_replay_falls_back_to_the_guided_path():

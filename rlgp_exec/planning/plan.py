@@ -23,7 +23,7 @@ class Level3Stats:
     time_s: float = 0.0  # building and solving the path NLPs [s]
     acc_cost: float | None = None  # the returned plan's acceleration cost (its level-3 segments)
     warm_acc_cost: float | None = None  # the same segments' warm start (graph waypoints resampled)
-    jac_nnz: int | None = None  # the last path NLP's constraint-Jacobian non-zeros
+    jac_nnz: int | None = None  # the last level-3 call's constraint-Jacobian non-zeros (all its segments)
     n_var: int | None = None  # and its variables
 
 

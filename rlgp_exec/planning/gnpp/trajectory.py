@@ -7,8 +7,8 @@ position and per-step velocity limits, the arm's spheres and the open hand (and 
 in the tool frame: the kinematic switch) clear of the fixtures and of the resting objects where the
 graph-NLP put them, the arm clear of the trunk and of the other arm where that one stands meanwhile
 (``motion.phases_of``: at its start posture while this arm acts). An idle arm's move home is optimised
-too (``Transit.home``): straight, its fingers or what it holds can pass through a block. One NLP per arm
-over all of its moves (block diagonal: the moves share no variable). The keyframes stay fixed: the
+too (``Transit.home``): straight, its fingers or what it holds can pass through a block. One call per arm
+over all of its moves (the moves share no variable: each is its own NLP). The keyframes stay fixed: the
 paper's own remedy for long plans ("fix the mode-switches and solve the trajectory of each step"), and a
 solved graph-NLP stays solved.
 A move the NLP cannot make feasible and no costlier keeps its straight motion; one the replay rejects

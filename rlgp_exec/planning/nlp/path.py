@@ -1,15 +1,18 @@
-"""Level 3 of LGP: full-path optimisation between fixed keyframes, one sparse NLP over every segment.
+"""Level 3 of LGP: full-path optimisation between fixed keyframes, one sparse NLP per segment.
 
 Each segment is a guided path of the plan (the reachability graph's waypoints, getWaypoints, or a
 transport / drive-round chain) between two configurations fixed by level 2 (the keyframes' approach
 configurations): it is resampled to ``T`` waypoints (equal time at the model's velocity limits) and
 the ``T - 2`` inner ones are the variables. With the ends fixed the segments share no variable, so
 the whole-path NLP is block diagonal: solving it at once or segment by segment gives the same optimum
-(the keyframes act as the kinematic switches, fixed from level 2). It is solved at once here, as one
-IPOPT problem, variables ordered time-major (segment by segment, waypoint by waypoint, z = [x, y,
-yaw, q_arm, a moving torso] each), each segment's rows time-major too, so the constraint Jacobian
-(block diagonal over segments, block bidiagonal within) and the Lagrangian's Hessian (banded) grow
-linearly with the plan; both are assembled from that structure (``_nlp``).
+(the keyframes act as the kinematic switches, fixed from level 2). It is solved segment by segment, one
+IPOPT problem each (``_solve``): each takes the iterations it needs, not those of the hardest segment
+(at once, every IPOPT iteration factorised all of them: pick_place_pr2 seeds 1-10, level-3 CPU median
+0.69 -> 0.54 s, seed 8 1.98 -> 0.77 s; sorting_pr2 seeds 1-8 median 0.70 -> 0.53 s), and a re-solve
+adds rows to the segment that violated them only. Variables time-major (waypoint by waypoint, z = [x,
+y, yaw, q_arm, a moving torso] each), the rows time-major too, so the constraint Jacobian (block
+bidiagonal) and the Lagrangian's Hessian (banded) grow linearly with the segment; both are assembled
+from that structure (``_nlp``, which takes any set of segments).
 
 At every inner waypoint and at the midpoint of every step (``_checkpoints``), built from the shared
 factors (``nlp.factors``, ``nlp.hand``), the same the keyframe NLP and GNPP use:
@@ -65,7 +68,7 @@ FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
 PAD_STRICT = 0.3  # ... for a ``strict`` segment: a straight move has no detour in its range to keep to
-ROUNDS = 2  # solves at most (re-solves add rows the solution violates)
+ROUNDS = 2  # solves per segment at most (re-solves add rows the solution violates)
 # IPOPT's tolerance: 1e-3 takes 20-25 % fewer iterations than 1e-4 for the same paths (9 plans of
 # pick_place_pr2 and sorting_pr2: all solved either way, acceleration cost / warm start's median 0.0045
 # vs 0.0043 and 0.0429 vs 0.0427); feasibility is FEAS_TOL's, checked on every row after the solve
@@ -107,11 +110,11 @@ class PathResult:
     warm_acc_cost: float  # the objective at the resampled warm start
     violation: float  # largest constraint violation [m or rad]
     durations_s: tuple[float, ...]  # per segment: (T - 1) dt [s] at which the velocity bounds hold
-    n_var: int
+    n_var: int  # summed over the segments' NLPs
     n_con: int
-    jac_nnz: int  # non-zeros of the constraint Jacobian
+    jac_nnz: int  # non-zeros of the constraint Jacobians
     relaxed: int  # rows bounded by the warm start's value (violated there already)
-    iterations: int
+    iterations: int  # IPOPT's, all segments
     build_s: float
     solve_s: float
     reason: str
@@ -347,7 +350,7 @@ def optimize_paths(
     body: Sequence[tuple[str, Box]] = (),
     max_iter: int = 200,
 ) -> PathResult:
-    """Optimise every segment's path at once (module docstring). ``hand``: finger spheres (tool frame,
+    """Optimise every segment's path, each its own NLP (module docstring). ``hand``: finger spheres (tool frame,
     ``nlp.hand.finger_spheres``); ``self_spheres``/``body``: the self-collision proxy
     (``nlp.hand.arm_link_spheres``, ``nlp.hand.body_obstacles``; their rows are built once per model and
     arguments, ``nlp.hand.self_rows_function``). T >= 3."""
@@ -383,40 +386,14 @@ def optimize_paths(
     build_s, solve_s = rows_s, 0.0
     iterations, n_var, n_con, jac_nnz, viol, cost, why = 0, 0, 0, 0, 0.0, 0.0, ""
     opt: dict[int, FloatArray] = {}  # id of an active block -> its optimised path (T, n)
-    x_last = None
-    for rnd in range(ROUNDS if active else 0):
-        t1 = time.perf_counter()
-        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, active, idx, w, T, max_iter, x_last is None)
-        n_var, n_con = int(x.numel()), int(g.numel())
-        jac_nnz = int(jac.sparsity().nnz())
-        t2 = time.perf_counter()
-        build_s += t2 - t1
-        res = solver(x0=x0 if x_last is None else x_last, lbx=lbx, ubx=ubx, lbg=lbg_a, ubg=ubg_a)  # re-solve: from last
-        solve_s += time.perf_counter() - t2
-        iterations += int(solver.stats().get("iter_count", 0))
-        xs = x_last = np.asarray(res["x"]).reshape(-1)
-        gv = np.asarray(res["g"]).reshape(-1)
-        viol = float(np.max(np.r_[lbg_a - gv, gv - ubg_a, 0.0]))
-        cost, why = float(res["f"]), solver.stats()["return_status"]
-        # every row, also those left out, at the solution: add the violated ones and solve again
-        added, off = 0, 0
-        for b in active:
-            Zi = np.clip(xs[off:off + n * (T - 2)].reshape(T - 2, n), b.lo, b.hi)  # IPOPT's bound relaxation
-            off += n * (T - 2)
-            opt[id(b)] = np.vstack([b.Zw[0], Zi, b.Zw[-1]])
-            if len(b.lb_all):
-                pts = _checkpoints(opt[id(b)])
-                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
-                bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
-                if bad.size:
-                    viol = max(viol, float(np.max(b.lb_all[bad] - vals[bad])))
-                    b.keep = np.r_[b.keep, bad]
-                    b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], len(pts), axis=1)])
-                    added += bad.size
-        if not added:
-            break
-        log.debug("level 3 round %d (%d iterations): %d rows left out were violated; solving again", rnd,
-                  solver.stats().get("iter_count", 0), added)
+    for b in active:
+        r = _solve(model, [b], idx, w, T, max_iter)
+        opt.update(r.paths)
+        build_s, solve_s, iterations = build_s + r.build_s, solve_s + r.solve_s, iterations + r.iterations
+        n_var, n_con, jac_nnz = n_var + r.n_var, n_con + r.n_con, jac_nnz + r.jac_nnz
+        cost += r.cost
+        if r.violation >= viol:  # the reason given is the worst segment's
+            viol, why = r.violation, r.status
     cost += sum(_acc_cost(b.Zw.T, w) for b in blocks if b.settled)
     Zs = [opt.get(id(b), b.Zw) for b in blocks]
     relaxed = sum(b.relaxed for b in blocks)
@@ -435,3 +412,63 @@ def optimize_paths(
         status, tuple(paths), cost, warm_cost, viol, tuple(b.dt * (T - 1) for b in blocks), n_var, n_con, jac_nnz,
         relaxed, iterations, build_s, solve_s, reason,
     )
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """One IPOPT problem's outcome (``_solve``): the optimised paths by block id, and its figures."""
+
+    paths: dict[int, FloatArray]  # id of a block -> (T, n)
+    cost: float
+    violation: float
+    status: str  # IPOPT's return status
+    iterations: int
+    n_var: int
+    n_con: int
+    jac_nnz: int
+    build_s: float
+    solve_s: float
+
+
+def _solve(model, blocks: list[_Block], idx, w: FloatArray, T: int, max_iter: int) -> _Solved:
+    """Solve ``blocks`` as one NLP; a re-solve (at most ROUNDS in all) adds the rows left out that the
+    solution violates."""
+    n = len(idx)
+    build_s = solve_s = 0.0
+    iterations, n_var, n_con, jac_nnz, viol, cost, why = 0, 0, 0, 0, 0.0, 0.0, ""
+    opt: dict[int, FloatArray] = {}
+    x_last = None
+    for rnd in range(ROUNDS):
+        t1 = time.perf_counter()
+        solver, x, g, jac, x0, lbx, ubx, lbg_a, ubg_a = _nlp(model, blocks, idx, w, T, max_iter, x_last is None)
+        n_var, n_con = int(x.numel()), int(g.numel())
+        jac_nnz = int(jac.sparsity().nnz())
+        t2 = time.perf_counter()
+        build_s += t2 - t1
+        res = solver(x0=x0 if x_last is None else x_last, lbx=lbx, ubx=ubx, lbg=lbg_a, ubg=ubg_a)  # re-solve: from last
+        solve_s += time.perf_counter() - t2
+        iterations += int(solver.stats().get("iter_count", 0))
+        xs = x_last = np.asarray(res["x"]).reshape(-1)
+        gv = np.asarray(res["g"]).reshape(-1)
+        viol = float(np.max(np.r_[lbg_a - gv, gv - ubg_a, 0.0]))
+        cost, why = float(res["f"]), solver.stats()["return_status"]
+        # every row, also those left out, at the solution: add the violated ones and solve again
+        added, off = 0, 0
+        for b in blocks:
+            Zi = np.clip(xs[off:off + n * (T - 2)].reshape(T - 2, n), b.lo, b.hi)  # IPOPT's bound relaxation
+            off += n * (T - 2)
+            opt[id(b)] = np.vstack([b.Zw[0], Zi, b.Zw[-1]])
+            if len(b.lb_all):
+                pts = _checkpoints(opt[id(b)])
+                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
+                bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
+                if bad.size:
+                    viol = max(viol, float(np.max(b.lb_all[bad] - vals[bad])))
+                    b.keep = np.r_[b.keep, bad]
+                    b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], len(pts), axis=1)])
+                    added += bad.size
+        if not added:
+            break
+        log.debug("level 3 round %d (%d iterations): %d rows left out were violated; solving again", rnd,
+                  solver.stats().get("iter_count", 0), added)
+    return _Solved(opt, cost, viol, why, iterations, n_var, n_con, jac_nnz, build_s, solve_s)
