@@ -120,17 +120,22 @@ def test_level3_plan_replays_collision_free(planned):
     assert plan.level3.acc_cost is not None and plan.level3.acc_cost <= plan.level3.warm_acc_cost
 
 
-def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
-    """The NLP's objective (a quadratic form built once) equals the acceleration cost of the paths its
-    variables stand for (numpy, ``_acc_cost``), at random points around the warm start."""
-    model, _, (segments, T, kw, _) = planned
+def _blocks(model, segments, T, kw):
+    """Level 3's blocks of ``segments`` (fresh: a solve adds rows to them), with idx and the weights."""
     manip = model.manipulator(None)
     idx = np.array([*model.group("base"), *model.group(manip.group)])
     w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
     fn, lower = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
     z = ca.SX.sym("z", len(idx))
     rs = RobotSymbols(model, segments[0].warm[0], manip.name, z)
-    blocks = [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments]
+    return [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments], idx, w
+
+
+def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
+    """The NLP's objective (a quadratic form built once) equals the acceleration cost of the paths its
+    variables stand for (numpy, ``_acc_cost``), at random points around the warm start."""
+    model, _, (segments, T, kw, _) = planned
+    blocks, idx, w = _blocks(model, segments, T, kw)
     solver = level3._nlp(model, blocks, idx, w, T, 10)[0]
     x0 = np.concatenate([b.Zw[1:-1].reshape(-1) for b in blocks])
     rng = np.random.default_rng(0)
@@ -143,17 +148,6 @@ def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):
             want += level3._acc_cost(np.vstack([b.Zw[0], inner, b.Zw[-1]]).T, w)
         got = float(solver.get_function("nlp_f")(xv, []))
         assert got == pytest.approx(want, rel=1e-9, abs=1e-9)
-
-
-def _blocks(model, segments, T, kw):
-    """Level 3's blocks of ``segments`` (fresh: a solve adds rows to them), with idx and the weights."""
-    manip = model.manipulator(None)
-    idx = np.array([*model.group("base"), *model.group(manip.group)])
-    w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
-    fn, lower = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
-    z = ca.SX.sym("z", len(idx))
-    rs = RobotSymbols(model, segments[0].warm[0], manip.name, z)
-    return [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments], idx, w
 
 
 def test_level3_jacobian_grows_linearly_with_the_number_of_segments(planned):
