@@ -207,7 +207,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
             if not _stage(report, name, fn):
                 break
     finally:
-        robot = state.get("proc")
-        if robot is not None:
-            robot.stop()  # type: ignore[attr-defined]
+        proc = state.get("proc")
+        if proc is not None:
+            proc.stop()  # type: ignore[attr-defined]
     return report

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rlgp_exec.errors import RlgpError
 from rlgp_exec.reach import (
     GraphCacheError,
     QueryStatus,
@@ -473,3 +474,11 @@ def test_a_held_box_is_made_once_per_size_and_parked_while_not_held(wall):
         checker.detach()
     assert checker.attached is None
     assert (checker.distance(q1), checker.edge_collides(q1, q2)) == before
+
+
+def test_carrying_a_box_without_its_hold_is_refused(wall):
+    """An object's size with no T_tool_obj is a clear error naming the missing hold (no box is attached)."""
+    planner = _fresh_planner(wall)
+    with pytest.raises(RlgpError, match="T_tool_obj"):
+        planner.carrying(np.array([0.05, 0.05, 0.08]))
+    assert planner.in_collision.attached is None

@@ -58,13 +58,13 @@ def nominal_q(model: RobotModel, scene: Scene) -> FloatArray:
 
 def workspace_box(scene: Scene, params: RGParams) -> tuple[FloatArray, FloatArray]:
     """The sampling box [lo, hi] (3,): around the fixtures, from the lowest support surface up."""
-    pts = []
+    corners: list[FloatArray] = []
     for fx in scene.fixtures:
         hx, hy = fx.size[0] / 2, fx.size[1] / 2
         for sx in (-1, 1):
             for sy in (-1, 1):
-                pts.append((fx.T @ np.array([sx * hx, sy * hy, 0.0, 1.0]))[:2])
-    pts = np.array(pts)
+                corners.append((fx.T @ np.array([sx * hx, sy * hy, 0.0, 1.0]))[:2])
+    pts = np.array(corners)
     # fixture surfaces only: the graph (and its cache key) must not depend on where the objects are
     zs = [s.z for s in support_surfaces(replace(scene, objects=()))]
     lo = np.r_[pts.min(axis=0) - params.margin_xy, min(zs) + 0.03]
@@ -108,7 +108,9 @@ def _worker(args: tuple) -> dict:
         ik = ReachIK(model, scene, nominal_q(model, scene), manipulator)
         lo, hi = workspace_box(scene, params)
         rng = np.random.default_rng(seed)
-        X, Q, C = [], [], []
+        X: list[FloatArray] = []
+        Q: list[FloatArray] = []
+        C: list[float] = []
         stats = {"attempts": 0, "rejected_precondition": 0, "rejected_ik": 0, "rejected_collision": 0}
         max_attempts = 20 * n_target
         while len(X) < n_target and stats["attempts"] < max_attempts:
@@ -171,12 +173,16 @@ def build_graph(
         for x, q, c in zip(r["X"], r["Q"], r["C"], strict=True):
             g.add_node(x, q, c)
     g.connect_knn()
+
+    def total(counter: str) -> int:
+        return sum(r[counter] for r in results)
+
     stats = BuildStats(
         time.perf_counter() - t0,
-        *(
-            sum(r[k] for r in results)
-            for k in ("attempts", "rejected_precondition", "rejected_ik", "rejected_collision")
-        ),
+        total("attempts"),
+        total("rejected_precondition"),
+        total("rejected_ik"),
+        total("rejected_collision"),
         False,
     )
     if g.G.number_of_nodes() < params.samples:

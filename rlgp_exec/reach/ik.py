@@ -154,7 +154,7 @@ class ReachIK:
         # common subexpressions merged (the arm's kinematics once, not once per fixture box): the same
         # answers, ~5-10 % less time per solve
         nlp = {"x": z, "p": p, "f": f, "g": ca.cse(ca.vertcat(*g)) if g else ca.SX(0, 1)}
-        opts = {
+        opts: dict[str, bool | int | float | str] = {
             "ipopt.print_level": 0,
             "print_time": False,
             "ipopt.sb": "yes",

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import networkx as nx
 import numpy as np
 
+from rlgp_exec.errors import RlgpError
 from rlgp_exec.reach.checker import WorldChecker
 from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import ReachIK
@@ -211,6 +212,8 @@ class ReachabilityPlanner:
         self._carry_verdicts = {}
         if size is None:
             self.in_collision.detach()
+        elif T_tool_obj is None:
+            raise RlgpError("carrying: an object of a given size needs T_tool_obj (4, 4), where the tool holds it")
         else:
             self.in_collision.attach(size, T_tool_obj)
 
@@ -279,9 +282,9 @@ class ReachabilityPlanner:
             for sigma in ENHANCE_SIGMAS:
                 for _ in range(tries):
                     xs = x + self.rng.normal(0.0, sigma, 3)
-                    sol = self._solve_node(xs)
-                    if sol is not None:
-                        yield xs, *sol
+                    node = self._solve_node(xs)
+                    if node is not None:
+                        yield xs, *node
 
     def _enhance(self, i: int) -> bool:
         """Samples around node i (``_candidates``), shrinking, until one connects i to the rest of the
@@ -448,7 +451,7 @@ class ReachabilityPlanner:
             from rlgp_exec.reach.ompl_plan import plan_ompl
 
             X = self.g.X[self.g.alive]
-            path = plan_ompl(
+            ompl_path = plan_ompl(
                 self.in_collision,
                 self.g.plan_idx,
                 self.g.Q[a],
@@ -457,10 +460,10 @@ class ReachabilityPlanner:
                 X[:, :2].max(axis=0) + 1.0,
                 timeout=self.ompl_timeout,
             )
-            if path is not None:
-                cost = float(sum(self.g.q_distance(u, v) for u, v in itertools.pairwise(path)))
+            if ompl_path is not None:
+                cost = float(sum(self.g.q_distance(u, v) for u, v in itertools.pairwise(ompl_path)))
                 self.counters["ompl_paths"] += 1
-                return RGPath(QueryStatus.OK, path, cost, False, (time.perf_counter() - t0) * 1e3, "ompl")
+                return RGPath(QueryStatus.OK, ompl_path, cost, False, (time.perf_counter() - t0) * 1e3, "ompl")
         return RGPath(
             QueryStatus.NO_PATH,
             np.zeros((0, self.g.limits.n)),

@@ -128,11 +128,11 @@ def load_robot_config(name: str) -> RobotConfig:
         name=_get(robot, "name", where),
         urdf=_get(robot, "urdf", where),
         base=BaseConfig(
-            velocity=tuple(base["velocity"]),  # type: ignore[arg-type]
-            acceleration=tuple(base["acceleration"]),  # type: ignore[arg-type]
-            jerk=tuple(base["jerk"]),  # type: ignore[arg-type]
+            velocity=tuple(base["velocity"]),
+            acceleration=tuple(base["acceleration"]),
+            jerk=tuple(base["jerk"]),
             footprint_radius=base.get("footprint_radius"),
-            footprint_half_extents=tuple(he) if he is not None else None,  # type: ignore[arg-type]
+            footprint_half_extents=tuple(he) if he is not None else None,
         ),
         groups=MappingProxyType(groups),
         manipulators=manips,

@@ -14,7 +14,7 @@ def pointing_error(model: RobotModel, q: FloatArray, target_world: FloatArray) -
     """Angle [rad] between the camera's optical axis and the direction to ``target_world`` (3,)."""
     T = model.fk(q, model.config.frames["camera"])
     d = np.asarray(target_world, float) - T[:3, 3]
-    c = float(T[:3, 2] @ d / max(np.linalg.norm(d), 1e-12))
+    c = float(T[:3, 2] @ d / max(float(np.linalg.norm(d)), 1e-12))
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
@@ -31,7 +31,7 @@ def look_at_q(model: RobotModel, q: FloatArray, target_world: FloatArray) -> Flo
         q[idx] = x
         T = model.fk(q, frame)
         d = target - T[:3, 3]
-        d = d / max(np.linalg.norm(d), 1e-12)
+        d = d / max(float(np.linalg.norm(d)), 1e-12)
         return T[:3, :3].T @ d - np.array([0.0, 0.0, 1.0])  # the direction in the optical frame vs its z axis
 
     x0 = np.clip(q[idx], lo, hi)

@@ -14,6 +14,9 @@ __all__ = ["JointLimits", "wrap_angle"]
 
 FloatArray = NDArray[np.float64]
 
+#: ``JointLimits.continuous`` when not given: no continuous joints (n False flags after construction)
+_NO_CONTINUOUS: NDArray[np.bool_] = np.zeros(0, bool)
+
 
 def wrap_angle(a: ArrayLike) -> FloatArray:
     """Wrap angles [rad] into [-pi, pi)."""
@@ -46,7 +49,7 @@ class JointLimits:
     velocity: FloatArray
     acceleration: FloatArray
     jerk: FloatArray
-    continuous: NDArray[np.bool_] = field(default=None)  # type: ignore[assignment]
+    continuous: NDArray[np.bool_] = field(default_factory=lambda: _NO_CONTINUOUS)
 
     def __post_init__(self) -> None:
         n = len(self.names)
@@ -54,7 +57,8 @@ class JointLimits:
             raise ModelError(f"JointLimits: duplicate joint names in {list(self.names)}")
         for what in ("lower", "upper", "velocity", "acceleration", "jerk"):
             object.__setattr__(self, what, _frozen(getattr(self, what), n, what))
-        cont = np.zeros(n, bool) if self.continuous is None else np.array(self.continuous, bool)
+        given = self.continuous is not None and self.continuous is not _NO_CONTINUOUS
+        cont = np.array(self.continuous, bool) if given else np.zeros(n, bool)
         if cont.shape != (n,):
             raise ModelError(f"JointLimits.continuous: expected {n} flags, got {cont.shape}")
         cont.setflags(write=False)

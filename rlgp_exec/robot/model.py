@@ -120,7 +120,9 @@ class RobotModel:
             acc.append(a)
             jerk.append(self.config.jerk.get(n, _JERK_PER_ACC * a))
             cont.append(is_cont)
-        return JointLimits(self.joint_names, np.array(lo), np.array(hi), vel, acc, jerk, np.array(cont))
+        return JointLimits(
+            self.joint_names, np.array(lo), np.array(hi), np.array(vel), np.array(acc), np.array(jerk), np.array(cont)
+        )
 
     # ------------------------------------------------------------------ names and vectors
     def index(self, joint: str) -> int:

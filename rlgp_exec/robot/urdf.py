@@ -116,7 +116,7 @@ def _base_joint(name: str, jtype: str, parent: str, child: str, axis: str, vel: 
     lim = {"effort": "1000", "velocity": f"{vel}"}
     if jtype != "continuous":
         lim.update(lower=f"{-_WIDE}", upper=f"{_WIDE}")
-    ET.SubElement(j, "limit", **lim)
+    ET.SubElement(j, "limit", attrib=lim)
     return j
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -220,6 +221,7 @@ class Scene:
 
     def with_object_poses(self, poses: Mapping[str, Pose]) -> Scene:
         """A copy with some objects moved (no validation: see ``validate_geometry``)."""
-        objs = tuple(replace(o, pose=tuple(float(v) for v in poses[o.name])) if o.name in poses else o
+        # cast: the four values of a Pose, as Python floats (mypy does not count a generator's items)
+        objs = tuple(replace(o, pose=cast(Pose, tuple(float(v) for v in poses[o.name]))) if o.name in poses else o
                      for o in self.objects)
         return replace(self, objects=objs)

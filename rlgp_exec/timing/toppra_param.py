@@ -42,6 +42,7 @@ from rlgp_exec.timing.trajectory import (
     TimingResult,
     TimingStatus,
     Trajectory,
+    _Spline,
     as_path,
 )
 
@@ -375,7 +376,9 @@ def time_parameterize_phases(
     if not phases:
         raise TimingError("no phases to parameterise")
     t0 = time.perf_counter()
-    pieces, segments, t, retries = [], [], 0.0, 0
+    pieces: list[_Spline] = []
+    segments: list[Segment] = []
+    t, retries = 0.0, 0
     prev_end: FloatArray | None = None
     for i, (kind, path) in enumerate(phases):
         if not isinstance(kind, PhaseKind):
@@ -415,7 +418,7 @@ def time_parameterize_phases(
 class _Shifted:
     """A piece whose positions are offset by whole turns on continuous joints."""
 
-    def __init__(self, piece, shift: FloatArray) -> None:
+    def __init__(self, piece: _Spline, shift: FloatArray) -> None:
         self.piece, self.shift, self.duration = piece, shift, piece.duration
 
     def __call__(self, t: FloatArray, order: int = 0) -> FloatArray:
