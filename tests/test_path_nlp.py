@@ -182,6 +182,36 @@ def test_level3_segment_by_segment_is_the_whole_path_optimum(planned):
         assert np.abs(Z_joint - Z_alone).max() < 1e-2
 
 
+def test_a_segment_level3_fails_on_keeps_its_warm_start_and_the_others_their_optimum(planned, monkeypatch):
+    """Segment by segment: when one segment's NLP ends infeasible, that segment gets its (resampled) warm
+    start back and the reason names it; the others are optimised as they would be alone."""
+    model, _, (segments, T, kw, _) = planned
+    want = level3.optimize_paths(model, segments, T, **kw)
+    assert want.ok and len(segments) >= 2
+    real, calls = level3._solve, []
+
+    def first_fails(model, blocks, *a):
+        r = real(model, blocks, *a)
+        calls.append(r)
+        return replace(r, violation=1.0, status="Maximum_Iterations_Exceeded") if len(calls) == 1 else r
+
+    monkeypatch.setattr(level3, "_solve", first_fails)
+    res = level3.optimize_paths(model, segments, T, **kw)
+    assert res.optimised == (False, *[True] * (len(segments) - 1)) and not res.ok
+    assert res.statuses[0] is level3.PathStatus.INFEASIBLE and "segment 0" in res.reason
+    core = [*model.group("base"), *model.group(model.manipulator(None).group)]
+    moving = {int(j) for seg in segments for j in np.flatnonzero(np.ptp(seg.warm, axis=0) > 1e-9)}
+    idx = np.array([*core, *sorted(moving - set(core))])  # and the torso, when a segment raises it
+    Zw, _ = level3.resample(level3._unwrapped(model, idx, segments[0].warm), model.limits.velocity[idx], T)
+    for q, z in zip(res.paths[0], Zw, strict=True):
+        warm = q.copy()
+        warm[idx] = z
+        assert np.abs(model.limits.difference(q, warm)).max() < 1e-9
+    assert res.acc_costs[0] == pytest.approx(res.warm_acc_costs[0])
+    for got, ref in zip(res.paths[1:], want.paths[1:], strict=True):
+        np.testing.assert_allclose(got, ref, atol=1e-9)
+
+
 def test_a_level3_path_that_collides_in_the_replay_falls_back_to_the_guided_path():
     """Algorithm 1's replanning when level 3 fails: a level-3 path driven through the table (here made
     so on purpose) collides in the replay; that phase gets its guided path back and the plan passes."""

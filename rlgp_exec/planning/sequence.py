@@ -411,9 +411,10 @@ class SequenceGeometry:
     def _optimise(
         self, phases: list[Phase], guides: list[_Guide]
     ) -> tuple[list[Phase], dict[int, _Guide], tuple[float, float] | None]:
-        """Level 3 on every guide: the phases with the optimised paths in place of the guides', the guides
-        whose phases now hold a level-3 path (by phase), and (acceleration cost, the warm start's) or
-        None when level 3 failed (the phases unchanged)."""
+        """Level 3 on every guide: the phases with the optimised paths in place of the guides' (a segment
+        level 3 failed on keeps its guide), the guides whose phases now hold a level-3 path (by phase),
+        and (their acceleration cost, their warm start's), or None when level 3 failed on every segment
+        (the phases unchanged)."""
         segs = [self._segment(g) for g in guides]
         res = optimize_paths(self.model, segs, self.T, hand=self.hand, self_spheres=self.self_spheres,
                              body=self.l3_body)
@@ -424,13 +425,16 @@ class SequenceGeometry:
         log.info("level 3: %s, acceleration cost %.3g (warm start %.3g), %d iterations, %.2f s + %.2f s, "
                  "%d rows relaxed", res.reason, res.acc_cost, res.warm_acc_cost, res.iterations, res.build_s,
                  res.solve_s, res.relaxed)
-        if not res.ok:  # Algorithm 1's fallback: the guided paths stay
+        # Algorithm 1's fallback: a segment level 3 failed on keeps its guided path
+        kept = [(g, path, c, c0) for g, path, c, c0, ok in
+                zip(guides, res.paths, res.acc_costs, res.warm_acc_costs, res.optimised, strict=True) if ok]
+        if not kept:
             return phases, {}, None
         out = list(phases)
-        for g, path in zip(guides, res.paths, strict=True):
+        for g, path, _, _ in kept:
             ph = out[g.phase]
             out[g.phase] = replace(ph, path=np.vstack([path, ph.path[len(g.path):]]))
-        return out, {g.phase: g for g in guides}, (res.acc_cost, res.warm_acc_cost)
+        return out, {g.phase: g for g, *_ in kept}, (sum(k[2] for k in kept), sum(k[3] for k in kept))
 
     def _replay(self, phases: list[Phase], optimised: dict[int, _Guide]):
         """validate_plan; a collision in a level-3 phase puts that phase back to its guide (shortcut) and

@@ -70,7 +70,7 @@ class Trajectories:
         return Segment(warm, tuple(lib.fixture_boxes) + objects, (), held, fix_base=True, strict=True)
 
     def optimise(self, phases: Sequence[Phase], transits: Sequence[Transit]) -> tuple[list[Phase], dict[int, Phase]]:
-        """The phases with every arm's moves optimised (those of an arm whose NLP failed unchanged), and
+        """The phases with every arm's moves optimised (those whose NLP failed unchanged), and
         the original of each phase changed (the fallback for the replay). One move per arm and phase at
         most (``phases_of``'s). ``stats.acc_cost``: this plan's optimised moves (None if none was)."""
         out, originals = list(phases), dict[int, Phase]()
@@ -91,10 +91,11 @@ class Trajectories:
             log.info("trajectories of %s (%d moves, T = %d): %s, acceleration cost %.3g (straight %.3g), "
                      "%d iterations, %.2f s + %.2f s", arm, len(mine), self.T, res.reason, res.acc_cost,
                      res.warm_acc_cost, res.iterations, res.build_s, res.solve_s)
-            if not res.ok:
-                continue
-            acc, warm_acc = (acc or 0.0) + res.acc_cost, (warm_acc or 0.0) + res.warm_acc_cost
-            done += zip(mine, res.paths, strict=True)
+            for t, path, c, c0, ok in zip(mine, res.paths, res.acc_costs, res.warm_acc_costs, res.optimised,
+                                          strict=True):
+                if ok:  # a move whose NLP failed keeps its straight motion
+                    acc, warm_acc = (acc or 0.0) + c, (warm_acc or 0.0) + c0
+                    done.append((t, path))
         # last rows first: a phase's earlier moves keep their row indices
         for t, path in sorted(done, key=lambda tp: (tp[0].phase, tp[0].row), reverse=True):
             ph = out[t.phase]

@@ -104,11 +104,14 @@ class Segment:
 
 @dataclass(frozen=True)
 class PathResult:
-    status: PathStatus
-    paths: tuple[FloatArray, ...]  # per segment (T, nq) [m, rad], wrapped; the warm starts if not ok
-    acc_cost: float  # the objective at the solution
-    warm_acc_cost: float  # the objective at the resampled warm start
-    violation: float  # largest constraint violation [m or rad]
+    """Level 3's outcome, segment by segment: a segment whose NLP failed (``PathStatus``) keeps its warm
+    start (resampled), the others are optimised."""
+
+    statuses: tuple[PathStatus, ...]  # per segment
+    paths: tuple[FloatArray, ...]  # per segment (T, nq) [m, rad], wrapped: optimised where ok, else the warm start
+    acc_costs: tuple[float, ...]  # per segment: the objective at the path returned
+    warm_acc_costs: tuple[float, ...]  # per segment: the objective at the resampled warm start
+    violation: float  # largest constraint violation of a solution [m or rad] (kept or not)
     durations_s: tuple[float, ...]  # per segment: (T - 1) dt [s] at which the velocity bounds hold
     n_var: int  # summed over the segments' NLPs
     n_con: int
@@ -117,11 +120,25 @@ class PathResult:
     iterations: int  # IPOPT's, all segments
     build_s: float
     solve_s: float
-    reason: str
+    reason: str  # "ok", or why each failed segment did
+
+    @property
+    def optimised(self) -> tuple[bool, ...]:
+        """Per segment: whether its path is level 3's."""
+        return tuple(s is PathStatus.OK for s in self.statuses)
 
     @property
     def ok(self) -> bool:
-        return self.status is PathStatus.OK
+        """Every segment optimised."""
+        return all(self.optimised)
+
+    @property
+    def acc_cost(self) -> float:
+        return float(sum(self.acc_costs))
+
+    @property
+    def warm_acc_cost(self) -> float:
+        return float(sum(self.warm_acc_costs))
 
 
 def _unwrapped(model: RobotModel, idx: FloatArray, path: FloatArray) -> FloatArray:
@@ -380,37 +397,42 @@ def optimize_paths(
         return shared[key]
 
     blocks = [_block(model, *shared_of(seg.warm[0]), idx, seg, T, hand) for seg in segments]
-    rows_s = time.perf_counter() - t0
-    warm_cost = sum(_acc_cost(b.Zw.T, w) for b in blocks)
-    active = [b for b in blocks if not b.settled]  # the rest are optimal as they are (``_Block.settled``)
-    build_s, solve_s = rows_s, 0.0
-    iterations, n_var, n_con, jac_nnz, viol, cost, why = 0, 0, 0, 0, 0.0, 0.0, ""
-    opt: dict[int, FloatArray] = {}  # id of an active block -> its optimised path (T, n)
-    for b in active:
+    build_s, solve_s = time.perf_counter() - t0, 0.0
+    iterations, n_var, n_con, jac_nnz, viol = 0, 0, 0, 0, 0.0
+    Zs, statuses, costs, warm_costs, reasons = [], [], [], [], []
+    for k, (seg, b) in enumerate(zip(segments, blocks, strict=True)):
+        warm = _acc_cost(b.Zw.T, w)
+        warm_costs.append(warm)
+        if b.settled:  # optimal as it is (``_Block.settled``)
+            Zs.append(b.Zw)
+            statuses.append(PathStatus.OK)
+            costs.append(warm)
+            continue
         r = _solve(model, [b], idx, w, T, max_iter)
-        opt.update(r.paths)
         build_s, solve_s, iterations = build_s + r.build_s, solve_s + r.solve_s, iterations + r.iterations
         n_var, n_con, jac_nnz = n_var + r.n_var, n_con + r.n_con, jac_nnz + r.jac_nnz
-        cost += r.cost
-        if r.violation >= viol:  # the reason given is the worst segment's
-            viol, why = r.violation, r.status
-    cost += sum(_acc_cost(b.Zw.T, w) for b in blocks if b.settled)
-    Zs = [opt.get(id(b), b.Zw) for b in blocks]
-    relaxed = sum(b.relaxed for b in blocks)
-    if viol > FEAS_TOL:
-        status, reason = PathStatus.INFEASIBLE, f"constraints violated by {viol:.2e} ({why})"
-    elif cost > warm_cost + 1e-9 and not any(seg.strict for seg in segments):
-        status, reason = PathStatus.WORSE, f"acceleration cost {cost:.3g} > warm start's {warm_cost:.3g}"
-    else:
-        status, reason = PathStatus.OK, "ok"
+        viol = max(viol, r.violation)
+        if r.violation > FEAS_TOL:
+            status, why = PathStatus.INFEASIBLE, f"constraints violated by {r.violation:.2e} ({r.status})"
+        elif r.cost > warm + 1e-9 and not seg.strict:
+            status, why = PathStatus.WORSE, f"acceleration cost {r.cost:.3g} > warm start's {warm:.3g}"
+        else:
+            status, why = PathStatus.OK, ""
+        statuses.append(status)
+        kept = status is PathStatus.OK
+        Zs.append(r.paths[id(b)] if kept else b.Zw)
+        costs.append(r.cost if kept else warm)
+        if not kept:
+            reasons.append(f"segment {k}: {why}")
     paths = []
-    for seg, Z in zip(segments, Zs if status is PathStatus.OK else [b.Zw for b in blocks], strict=True):
+    for seg, Z in zip(segments, Zs, strict=True):
         q = np.repeat(np.asarray(seg.warm[:1], float), len(Z), axis=0)
         q[:, idx] = Z
         paths.append(np.array([model.limits.wrap(qi) for qi in q]))
     return PathResult(
-        status, tuple(paths), cost, warm_cost, viol, tuple(b.dt * (T - 1) for b in blocks), n_var, n_con, jac_nnz,
-        relaxed, iterations, build_s, solve_s, reason,
+        tuple(statuses), tuple(paths), tuple(costs), tuple(warm_costs), viol, tuple(b.dt * (T - 1) for b in blocks),
+        n_var, n_con, jac_nnz, sum(b.relaxed for b in blocks), iterations, build_s, solve_s,
+        "; ".join(reasons) or "ok",
     )
 
 
