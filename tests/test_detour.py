@@ -106,7 +106,7 @@ def test_a_transport_to_the_far_side_of_a_table_drives_round_it(pick_place, held
     try:
         assert not geo.checker(q_near) and not geo.checker(q_far)
         assert geo.checker.edge_collides(q_near, q_far)
-        path = geo._transport(q_near, q_far)
+        path = geo.moves.transport(q_near, q_far)
         assert path is not None
         assert np.allclose(path[0], q_near) and np.allclose(path[-1], q_far)
         assert not any(geo.checker(q) for q in path)
