@@ -13,6 +13,7 @@ import os
 import platform
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pybullet as p
@@ -125,7 +126,7 @@ def run_perception_bench(seed: int = 0, views_per_distance: int = 12, negatives:
     finally:
         world.close()
 
-    per_detector = {}
+    per_detector: dict[str, dict[str, Any]] = {}
     for name in detectors:
         rs = [r for r in runs if r["detector"] == name]
         ok = [r for r in rs if r["detected"]]

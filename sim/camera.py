@@ -81,7 +81,7 @@ def render_camera(
             p.changeVisualShape(world.robot.id, link, rgbaColor=rgba_link, physicsClientId=world.client)
     img = np.asarray(rgba, dtype=np.uint8).reshape(intrinsics.height, intrinsics.width, 4)[:, :, :3].copy()
     if effects.blur_sigma > 0.0:
-        img = cv2.GaussianBlur(img, (0, 0), effects.blur_sigma)
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), effects.blur_sigma), dtype=np.uint8)
     if effects.noise_std > 0.0:
         rng = np.random.default_rng(effects.seed)
         noisy = img.astype(np.float32) + rng.normal(0.0, effects.noise_std, img.shape).astype(np.float32)

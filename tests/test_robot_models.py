@@ -258,6 +258,29 @@ def test_pr2_urdf_comes_from_the_wheel_with_package_paths_rewritten():
     assert all("cmeel.prefix" in Path(m).parts for m in meshes)  # in the installed wheel, not copied here
 
 
+def test_prepared_urdf_texts_are_kept_on_disk_by_what_they_are_made_from(tmp_path, monkeypatch):
+    """The PyBullet and pinocchio texts are written once per set of inputs and read back equal; other base
+    speeds (part of the prepended base joints) make other texts."""
+    import dataclasses
+    import tempfile
+
+    from rlgp_exec.robot.config import load_robot_config
+    from rlgp_exec.robot.urdf import prepare_urdf
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    cfg = load_robot_config("pr2")
+    fresh = prepare_urdf(cfg)
+    kept = sorted((tmp_path / "rlgp-exec-urdf").iterdir())
+    assert len(kept) == 2 and sum(f.name.endswith(".pinocchio.urdf") for f in kept) == 1
+    assert prepare_urdf(cfg) == fresh  # read back
+    assert Path(fresh.pybullet_path).read_text().count('type="continuous"') > 0  # PyBullet's keeps them
+    assert 'type="continuous"' not in fresh.pinocchio_xml
+    slow = dataclasses.replace(cfg, base=dataclasses.replace(cfg.base, velocity=(0.1, 0.1, 0.1)))
+    other = prepare_urdf(slow)
+    assert other.pybullet_path != fresh.pybullet_path and other.pinocchio_xml != fresh.pinocchio_xml
+    assert len(list((tmp_path / "rlgp-exec-urdf").iterdir())) == 4
+
+
 def test_the_pr2_keyframe_wrist_limit_is_where_the_fingers_leave_the_forearm():
     """Random right-arm postures, left arm tucked: with the wrist flexed past ``keyframe_limits`` the open
     fingers are in the forearm's hull in most postures (beyond -1.9 rad: over 90 %), inside them about as

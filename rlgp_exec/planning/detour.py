@@ -74,7 +74,7 @@ def _point_segment(x: float, y: float, ax: float, ay: float, bx: float, by: floa
     return math.hypot(x - ax - t * dx, y - ay - t * dy)
 
 
-def _segment_distance(r: _Rect, p: FloatArray, q: FloatArray) -> float:
+def _segment_distance(r: _Rect, p: Sequence[float], q: Sequence[float]) -> float:
     """``segment_distance`` on a footprint of plain floats."""
     (ax, ay), (bx, by) = _local(r, p[0], p[1]), _local(r, q[0], q[1])
     hx, hy = r[6], r[7]
@@ -84,7 +84,7 @@ def _segment_distance(r: _Rect, p: FloatArray, q: FloatArray) -> float:
     return min(ends, *(_point_segment(sx * hx, sy * hy, ax, ay, bx, by) for sx in (-1, 1) for sy in (-1, 1)))
 
 
-def _hits(r: _Rect, p: FloatArray, q: FloatArray, radius: float) -> bool:
+def _hits(r: _Rect, p: Sequence[float], q: Sequence[float], radius: float) -> bool:
     """``segment_hits`` on a footprint of plain floats; a segment missing the footprint's square grown by
     ``radius`` (which holds the rounded one) misses at once."""
     (ax, ay), (bx, by) = _local(r, p[0], p[1]), _local(r, q[0], q[1])

@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
@@ -128,7 +129,7 @@ class SequenceGeometry:
         leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails.
         ``deadline`` (``budget.cpu_clock()`` [s]): no new keyframe start or tilt after it."""
         t0 = time.perf_counter() if t_start is None else t_start
-        reasons = []
+        reasons: list[str] = []
         for tilt in (0.0, 0.6):
             if reasons and deadline is not None and cpu_clock() > deadline:
                 break
@@ -192,7 +193,11 @@ class SequenceGeometry:
         drawer_bx = [b for c, v in self.drawers.items() for b in v.boxes(g.openings[c])]
         rects = self.moves.footprints(g.openings)
         boxes = [b for fx in self.scene.fixtures for b in fixture_boxes(fx)] + drawer_bx + list(g.objects)
-        held = None if g.held is None else (np.asarray(self.scene.object(g.held).size), g.T_tool_obj)
+        held = None
+        if g.held is not None:
+            if g.T_tool_obj is None:
+                raise RlgpError(f"guided path of phase {g.phase}: {g.held} held without its grasp T_tool_obj")
+            held = (np.asarray(self.scene.object(g.held).size, float), g.T_tool_obj)
         return Segment(g.path, tuple(boxes), tuple(rects), held)
 
     def _optimise(
@@ -355,9 +360,9 @@ class SequenceGeometry:
         if validation.ok and optimised:
             self.l3 = replace(self.l3, used=self.l3.used + 1)
         if validation.ok:  # the returned plan's level-3 costs (None when a segment fell back)
-            whole = costs is not None and len(optimised) == len(guides)
-            self.l3 = replace(self.l3, acc_cost=costs[0] if whole else None,
-                              warm_acc_cost=costs[1] if whole else None)
+            whole = costs if len(optimised) == len(guides) else None
+            self.l3 = replace(self.l3, acc_cost=whole[0] if whole else None,
+                              warm_acc_cost=whole[1] if whole else None)
         reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
         return Plan(
             validation.ok,

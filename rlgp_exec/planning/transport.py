@@ -187,8 +187,9 @@ class Transport:
         radius = max(math.hypot(cx, cy) + r for cx, cy, r in base_circles(self.model)) + DETOUR_MARGIN
         out_a, out_b = self._clear_of(a, rects, radius), self._clear_of(b, rects, radius)
         routes = []
-        for qa, qb in ((a, b), (out_a, out_b)):
-            xy = None if qa is None or qb is None else detour(qa[:2], qb[:2], rects, radius)
+        ends = [(a, b)] + ([(out_a, out_b)] if out_a is not None and out_b is not None else [])
+        for qa, qb in ends:
+            xy = detour(qa[:2], qb[:2], rects, radius)
             if xy is not None and len(xy) > 2:  # a straight drive is the variants' before these
                 s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
                 routes.append((qa, qb, xy, s / s[-1]))
@@ -257,6 +258,10 @@ class Transport:
         X = self.graph.X[self.graph.alive]
         lo_xy, hi_xy = X[:, :2].min(axis=0) - 1.0, X[:, :2].max(axis=0) + 1.0
         verdicts: dict[bytes, bool] = {}
+
+        def free(q: FloatArray, q_to: FloatArray | None = None) -> bool:
+            return self._free(verdicts, q, q_to)
+
         return drive_base(
             self.checker,
             q1,
@@ -266,7 +271,7 @@ class Transport:
             lo_xy,
             hi_xy,
             DRIVE_ROUND_TIMEOUT,
-            lambda q, q_to=None: self._free(verdicts, q, q_to),
+            free,
         )
 
     def _free(self, verdicts: dict[bytes, bool], q: FloatArray, q_to: FloatArray | None = None) -> bool:

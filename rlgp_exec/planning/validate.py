@@ -97,9 +97,10 @@ def goal_holds(
             T2, o2 = poses[target], scene.object(target)
             rect = (T2, (o2.size[0] / 2, o2.size[1] / 2), float(T2[2, 3] + o2.size[2] / 2))
         else:
-            rect = _region_rect(scene, target)
-            if rect is None:
+            region = _region_rect(scene, target)
+            if region is None:
                 return False, f"{literal}: unknown target {target!r}"
+            rect = region
         Tr, half, z = rect
         d = np.linalg.inv(Tr) @ T[:, 3]
         bottom = T[2, 3] - o.size[2] / 2

@@ -93,6 +93,16 @@ class ReachabilityGraph:
             + p.w_c * (self.C[i] + self.C[j])
         )
 
+    def edge_costs(self, i: np.ndarray, j: np.ndarray) -> FloatArray:
+        """``edge_cost`` of many edges at once: node indices i, j (m,) -> (m,)."""
+        p = self.params
+        d_q = self.limits.difference(self.Q[j], self.Q[i])[:, self.plan_idx]
+        return (
+            p.w_x * np.linalg.norm(self.X[i] - self.X[j], axis=1)
+            + p.w_q * np.linalg.norm(d_q, axis=1)
+            + p.w_c * (self.C[i] + self.C[j])
+        )
+
     def add_edge(self, i: int, j: int, checked: bool = False) -> None:
         self.G.add_edge(i, j, weight=self.edge_cost(i, j), checked=checked)
 
@@ -192,8 +202,12 @@ class ReachabilityGraph:
         g = cls(limits, np.asarray(meta["plan_idx"]), RGParams(**meta["params"]), meta)
         g.X, g.Q, g.C = X.astype(float), Q.astype(float), C.astype(float)
         g.G.add_nodes_from(int(i) for i in alive)
-        for (u, v), chk in zip(edges, checked, strict=True):
-            g.add_edge(int(u), int(v), checked=bool(chk))
+        u, v = edges[:, 0].astype(int), edges[:, 1].astype(int)
+        weights = g.edge_costs(u, v) if len(edges) else np.zeros(0)
+        g.G.add_edges_from(
+            (int(a), int(b), {"weight": float(w), "checked": bool(c)})
+            for a, b, w, c in zip(u, v, weights, checked, strict=True)
+        )
         return g
 
     def same_as(self, other: ReachabilityGraph) -> bool:

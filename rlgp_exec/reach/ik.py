@@ -64,7 +64,7 @@ def arm_spheres(model: RobotModel, manipulator: str | None = None, radius: float
     return [(j, radius) for j in joints] + [(m.palm_frame, radius), (m.tool_frame, 0.5 * radius)]
 
 
-def box_sdf(p_local: ca.SX, half: np.ndarray) -> ca.SX:
+def box_sdf(p_local: ca.SX | ca.DM, half: np.ndarray) -> ca.SX:
     """Smooth signed distance [m] from a point (in the box frame) to a box of half extents ``half``:
     the exact distance outside (up to 1e-4 m of smoothing), negative and ~ -depth inside. One call of
     a CasADi function built once (the expression inlined: ~20x faster to build than op by op)."""

@@ -15,6 +15,7 @@ revolute joints with wide limits so that every joint has nq = nv = 1 and q holds
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import site
 import sys
@@ -30,6 +31,7 @@ __all__ = ["MimicJoint", "PreparedUrdf", "UrdfJoint", "example_robot_data_dir", 
 
 _ERD_PREFIX = "example-robot-data:"
 _WIDE = 1.0e4  # [rad] stand-in limit for continuous joints in pinocchio's text
+_FORMAT = 2  # of the prepared texts kept on disk: bump when prepare_urdf changes what it writes
 
 
 @dataclass(frozen=True)
@@ -128,22 +130,24 @@ def _root_link(robot: ET.Element) -> str:
     return str(roots[0])
 
 
-def _write_cached(text: str, name: str) -> Path:
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+def _cache_paths(name: str, key: str) -> tuple[Path, Path]:
+    """Where the PyBullet and pinocchio texts of a prepared URDF with inputs ``key`` are kept."""
     folder = Path(tempfile.gettempdir()) / "rlgp-exec-urdf"
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}-{digest}.urdf"
-    if not path.exists():
-        tmp = folder / f".{name}-{digest}.{os.getpid()}.tmp"
-        tmp.write_text(text)
-        os.replace(tmp, path)  # atomic: parallel workers never read a half-written file
-    return path
+    return folder / f"{name}-{key}.urdf", folder / f"{name}-{key}.pinocchio.urdf"
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)  # atomic: parallel workers never read a half-written file
 
 
 def prepare_urdf(cfg: RobotConfig) -> PreparedUrdf:
     """Load ``cfg``'s URDF, prepend the planar base and produce the pinocchio/PyBullet texts."""
+    source = _source_text(cfg)
     try:
-        robot = ET.fromstring(_source_text(cfg))
+        robot = ET.fromstring(source)
     except ET.ParseError as e:
         raise ModelError(f"{cfg.name}: URDF is not valid XML: {e}") from e
     root = _root_link(robot)
@@ -193,19 +197,29 @@ def prepare_urdf(cfg: RobotConfig) -> PreparedUrdf:
         str(lk.get("name")) for lk in robot.findall("link") if lk.find("collision") is not None
     )
 
-    pybullet_text = ET.tostring(robot, encoding="unicode")
-    for j in robot.findall("joint"):
-        if j.get("type") == "continuous":
-            j.set("type", "revolute")
-            lim = j.find("limit")
-            if lim is None:
-                lim = ET.SubElement(j, "limit", effort="100", velocity="1")
-            lim.set("lower", f"{-_WIDE}")
-            lim.set("upper", f"{_WIDE}")
-    pin_text = ET.tostring(robot, encoding="unicode")
+    # the two texts are kept on disk by what they are made from (serialising the PR2's tree takes ~0.1 s,
+    # every process that loads the robot paid it)
+    inputs = json.dumps([source, list(vel), _WIDE, _FORMAT])
+    bullet_path, pin_path = _cache_paths(cfg.name, hashlib.sha256(inputs.encode()).hexdigest()[:16])
+    try:
+        pin_text = pin_path.read_text() if bullet_path.is_file() else None
+    except OSError:
+        pin_text = None
+    if pin_text is None:
+        _write_atomic(bullet_path, ET.tostring(robot, encoding="unicode"))
+        for j in robot.findall("joint"):
+            if j.get("type") == "continuous":
+                j.set("type", "revolute")
+                lim = j.find("limit")
+                if lim is None:
+                    lim = ET.SubElement(j, "limit", effort="100", velocity="1")
+                lim.set("lower", f"{-_WIDE}")
+                lim.set("upper", f"{_WIDE}")
+        pin_text = ET.tostring(robot, encoding="unicode")
+        _write_atomic(pin_path, pin_text)
     return PreparedUrdf(
         pinocchio_xml=pin_text,
-        pybullet_path=_write_cached(pybullet_text, cfg.name),
+        pybullet_path=bullet_path,
         root_link=root,
         joints=tuple(joints),
         mimics=tuple(mimics),

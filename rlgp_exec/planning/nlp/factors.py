@@ -50,7 +50,7 @@ class Rows:
         self.lower.append(lower)
         self.upper.append(upper)
 
-    def add_all(self, g: ca.SX, lower: Sequence[float], upper: float) -> None:
+    def add_all(self, g: ca.SX, lower: Sequence[float] | FloatArray, upper: float) -> None:
         """One row per element of the vector ``g`` (column-major), each with its lower bound."""
         parts = ca.vertsplit(ca.vec(g))
         if len(parts) != len(lower):

@@ -189,9 +189,7 @@ def _read_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
 
     from scipy.spatial.transform import Rotation
 
-    from rlgp_exec.robot.urdf import prepare_urdf
-
-    root = ET.fromstring(prepare_urdf(model.config).pinocchio_xml)
+    root = ET.fromstring(model.urdf.pinocchio_xml)
     out: dict[str, list[tuple[FloatArray, float, float]]] = {}
     for link in root.findall("link"):
         for col in link.findall("collision"):

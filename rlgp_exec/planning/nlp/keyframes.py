@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -427,7 +428,7 @@ def _build(
     placed_by: dict[str, tuple[int, ...]] = {}  # object -> the keyframes its placed pose reads (place, pick)
     held: str | None = scene.start.held  # the start's grasp: T_tool_obj is fixed, the kinematic switch
     knob: str | None = None
-    grasp: ca.SX | None = None if held is None else ca.DM(scene.start.T_tool_obj)
+    grasp: ca.SX | ca.DM | None = None if held is None else ca.DM(scene.start.T_tool_obj)
     held_T0 = None if held is None else scene.start.T_tool_obj
     if held is not None:
         moved.add(held)  # rides in the hand: no obstacle where it stands
@@ -557,13 +558,13 @@ def _build(
     row_keyframe += [K - 1] * (len(rows.g) - len(row_keyframe))
     sizes = {m: o.size for m, o in objs.items()}
     z0 = ca.DM(ik.z_of(q_start))
-    cost = 0
-    prev = z0
+    cost = ca.SX(0)
+    prev: ca.SX | ca.DM = z0
     for k in range(K):
         d = Z[:, k] - prev
         cost += W_BASE * ca.sumsqr(d[:2]) + W_BASE * d[2] ** 2 + ca.sumsqr(d[3:])
         prev = Z[:, k]
-    cost += W_TILT * sum(tilts)
+    cost += W_TILT * sum(tilts, ca.SX(0))
     # two stages per start (parameters, one solver): feasibility near the initial guess (each keyframe's
     # own IK seed), then the motion cost from there; a seed's basin is kept even when the motion cost
     # alone would pull a keyframe towards its neighbours' side of an obstacle
@@ -574,7 +575,8 @@ def _build(
     pp = ca.vertcat(w_motion, w_seed, Z_seed)
     g_all = _constraints(rows)
     nlp = {"x": x, "p": pp, "f": objective, "g": g_all}
-    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400, "ipopt.tol": 1e-7}
+    opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
+                            "ipopt.tol": 1e-7}
     opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
     solver = ca.nlpsol("keyframes", "ipopt", nlp, opts)
     n_aux = 12 * len(aux)
@@ -721,10 +723,10 @@ def solve_keyframes(
                 continue
             if x is None:  # follows the drawer: the previous keyframe, the base shifted along the axis
                 a = actions[k]
-                z = init[-1].copy()
+                z_follow = init[-1].copy()
                 moved_m = opening_at[k][a.obj] - opening_at[k - 1][a.obj]
-                z[:2] += moved_m * drawers[a.obj].axis_world[:2]
-                init.append(z)
+                z_follow[:2] += moved_m * drawers[a.obj].axis_world[:2]
+                init.append(z_follow)
                 continue
             prev_xy = init[-1][:2] if init else z_start[:2]
             z = None

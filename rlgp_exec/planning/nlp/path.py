@@ -46,6 +46,7 @@ import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, overload
 
 import casadi as ca
 import numpy as np
@@ -163,6 +164,10 @@ def resample(z: FloatArray, vmax: FloatArray, T: int) -> tuple[FloatArray, float
     return out, float(s[-1] / (T - 1))
 
 
+@overload
+def _acc_cost(Z: FloatArray, w: FloatArray) -> float: ...
+@overload
+def _acc_cost(Z: ca.MX, w: FloatArray) -> ca.MX: ...
 def _acc_cost(Z: ca.MX | FloatArray, w: FloatArray) -> ca.MX | float:
     """Σ_t Σ_j w_j (z_{t+1} - 2 z_t + z_{t-1})_j^2 of a path Z (n, T)."""
     acc = Z[:, 2:] - 2 * Z[:, 1:-1] + Z[:, :-2]
@@ -219,7 +224,7 @@ class _Block:
     g_expr: list[ca.SX]
     z: ca.SX
     zp: ca.SX
-    keep: FloatArray  # indices of the rows in the NLP
+    keep: np.ndarray  # (k,) int: indices of the rows in the NLP
     lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
     # the warm start violates them)
     relaxed: int
@@ -309,7 +314,8 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
     pick_place_pr2)."""
     n, m = len(idx), T - 2
     S, D = _selectors(n, m)
-    X, G, J, lbg, ubg, x0, lbx, ubx, f = [], [], [], [], [], [], [], [], 0
+    X, G, J, lbg, ubg, x0, lbx, ubx = [], [], [], [], [], [], [], []
+    f = ca.MX(0)
     for b in blocks:
         Zi = ca.MX.sym("Z", n, m)
         X.append(ca.vec(Zi))
@@ -347,7 +353,7 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
     lam_f, p, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("p", 0), ca.MX.sym("lam_g", g.numel())
     hess_lag = ca.Function("hess_lag", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.MX(H_f))])
     jac_g = ca.Function("jac_g", [x, p], [g, jac])
-    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+    opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
             "ipopt.tol": TOL, "ipopt.mu_init": 1e-3, "ipopt.hessian_constant": "yes", "hess_lag": hess_lag,
             **({"ipopt.warm_start_init_point": "yes", "ipopt.bound_push": BOUND_PUSH, "ipopt.bound_frac": BOUND_PUSH}
                if at_guide else {}),
