@@ -59,6 +59,11 @@ W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
+# IPOPT's successive restoration iterations before it gives a start up. Stuck starts stayed in restoration
+# to the 400-iteration cap (pick_place_pr2 seed 3: two starts, 366 and 390 iterations in it, 1.8 s each);
+# of the keyframe solves of pick_place_pr2 and sorting_pr2 seeds 0-19 and table_clearing_hsr seeds 0-5,
+# none that succeeded spent more than 28 successive iterations there
+MAX_RESTO_ITER = 100
 SEED_LOOKAHEAD = 4  # graph seeds looked at past an attempt's rank for one not tried at that keyframe yet
 SAME_SEED = 0.05  # [m, rad] an initial guess this close (every coordinate) to an earlier one is not tried again
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
@@ -576,7 +581,7 @@ def _build(
     g_all = _constraints(rows)
     nlp = {"x": x, "p": pp, "f": objective, "g": g_all}
     opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
-                            "ipopt.tol": 1e-7}
+                            "ipopt.tol": 1e-7, "ipopt.max_resto_iter": MAX_RESTO_ITER}
     opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
     solver = ca.nlpsol("keyframes", "ipopt", nlp, opts)
     n_aux = 12 * len(aux)

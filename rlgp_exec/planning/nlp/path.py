@@ -70,10 +70,12 @@ REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches 
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
 PAD_STRICT = 0.3  # ... for a ``strict`` segment: a straight move has no detour in its range to keep to
 ROUNDS = 2  # solves per segment at most (re-solves add rows the solution violates)
-# IPOPT's tolerance: 1e-3 takes 20-25 % fewer iterations than 1e-4 for the same paths (9 plans of
-# pick_place_pr2 and sorting_pr2: all solved either way, acceleration cost / warm start's median 0.0045
-# vs 0.0043 and 0.0429 vs 0.0427); feasibility is FEAS_TOL's, checked on every row after the solve
-TOL = 1e-3
+# IPOPT's tolerance; feasibility is FEAS_TOL's, checked on every row after the solve. A segment alone has
+# a small objective: at 1e-3 its solve stopped at 2-4x the acceleration cost the whole-path solve reached
+# (pick_place_pr2 seed 3: 0.0133 against 0.0038; which itself stopped short of the 0.0013 both reach at
+# 1e-5). At 1e-5, seeds 1-12, against the whole-path NLP at 1e-3: every plan's acceleration cost lower,
+# base paths 9 % shorter (median 2.26 against 2.48 m), level-3 CPU 6.1 against 6.6 s in all
+TOL = 1e-5
 # the warm start is the guide, feasible but for the relaxed rows: IPOPT starts at it, not pushed 1 % of each
 # bound's range inside (its default). The level-3 NLPs of pick_place_pr2 seeds 1-6, 11, 12 and sorting_pr2
 # seeds 1-5, 7-9 replayed: 478 -> 425 iterations in all (median 27.5 -> 25.5), every optimum the same to 4
