@@ -482,3 +482,55 @@ def test_carrying_a_box_without_its_hold_is_refused(wall):
     with pytest.raises(RlgpError, match="T_tool_obj"):
         planner.carrying(np.array([0.05, 0.05, 0.08]))
     assert planner.in_collision.attached is None
+
+
+@pytest.mark.parametrize("scene_name", ["pick_place_pr2", "table_clearing_hsr"])
+def test_joint_radii_bound_how_fast_any_point_of_the_arm_moves(scene_name):
+    """The sweep's bound: per unit of an arm joint, no point of a link it moves travels further than the
+    joint's radius. Checked on the corners of each link's collision bounding box (taken at home, rigid in
+    the link's frame: they enclose its shapes) at random postures, by finite differences."""
+    import pybullet as p
+
+    scene = load_scene(SORTING.parent / f"{scene_name}.toml")
+    model = load_robot(scene.robot.name)
+    checker = WorldChecker(scene, model.manipulator().group)
+    body, client = checker.robot.id, checker.client
+    try:
+        def frames(q):
+            checker.robot.set_q(q)
+            out = []
+            for i in range(p.getNumJoints(body, physicsClientId=client)):
+                st = p.getLinkState(body, i, computeForwardKinematics=True, physicsClientId=client)
+                R = np.asarray(p.getMatrixFromQuaternion(st[5])).reshape(3, 3)
+                out.append((np.asarray(st[4]), R))
+            return out
+
+        home = model.home()
+        corners = {}  # link -> (8, 3) in its frame
+        for i, (o, R) in enumerate(frames(home)):
+            if p.getCollisionShapeData(body, i, physicsClientId=client):
+                lo, hi = p.getAABB(body, i, physicsClientId=client)
+                c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+                corners[i] = (c - o) @ R
+        moved = checker._moved_by
+        arm = np.array(model.group(model.manipulator().group))
+        rng = np.random.default_rng(7)
+        lo, hi = model.limits.lower.copy(), model.limits.upper.copy()
+        lo[model.limits.continuous], hi[model.limits.continuous] = -np.pi, np.pi
+        eps, worst = 1e-3, 0.0  # PyBullet's link states carry ~1e-7 m of rounding
+        for _ in range(15):
+            q = home.copy()
+            q[arm] = rng.uniform(lo[arm], hi[arm] - eps)
+            at = frames(q)
+            for j in arm:
+                dq = q.copy()
+                dq[j] += eps
+                after = frames(dq)
+                for i, c in corners.items():
+                    if not moved[i + 1, j]:
+                        continue
+                    step = np.linalg.norm((c @ after[i][1].T + after[i][0]) - (c @ at[i][1].T + at[i][0]), axis=1).max()
+                    worst = max(worst, step / eps / checker.radii[j])
+        assert 0.3 < worst <= 1.0 + 2e-3, worst  # bounded (a lift's is exact), and not by an order of magnitude
+    finally:
+        checker.close()

@@ -43,18 +43,43 @@ SELF_TOLERANCE = 1e-3  # [m] penetration allowed between robot links (touching n
 SELF_STEP = 0.02  # [rad or m] of arm motion between self-collision samples along an edge
 
 
-def joint_radii(model: RobotModel, arm_group: str) -> FloatArray:
-    """(nq,) how far [m] a robot point can move per unit of each joint (upper bounds)."""
+def joint_radii(model: RobotModel, arm_group: str, body: int, client: int) -> FloatArray:
+    """(nq,) how far [m] a robot point can move per unit of each joint (upper bounds). The base's x and
+    y: 1; its yaw: the robot's reach from the vertical axis (the body's links get their own,
+    ``WorldChecker._body_yaw_radii``); a prismatic arm joint: 1; a revolute one: the farthest any link it
+    moves can be from its origin, the chain's offsets summed from the joint to the link (the distance
+    between a link's frame and its parent's is fixed across a revolute or fixed joint; a prismatic one
+    adds its travel) plus the link's own reach from its frame (the corners of its collision shapes'
+    bounding box at the current posture enclose them)."""
     r = np.full(model.nq, 1.0)
-    reach = 1.4 if model.name == "pr2" else 1.1  # base axis to the farthest point with the arm out
-    r[2] = reach
-    arm = list(model.group(arm_group))
-    for k, i in enumerate(arm):
-        r[i] = (
-            1.0
-            if model.limits.continuous[i] is False and model.joint_names[i].endswith("lift_joint")
-            else max(0.3, 1.0 - 0.1 * k)
-        )
+    r[2] = 1.4 if model.name == "pr2" else 1.1  # base axis to the farthest point with the arm out
+    index = {n: i for i, n in enumerate(model.joint_names)}
+    n = p.getNumJoints(body, physicsClientId=client)
+    info = [p.getJointInfo(body, i, physicsClientId=client) for i in range(n)]
+    origin = [np.asarray(p.getLinkState(body, i, computeForwardKinematics=True, physicsClientId=client)[4])
+              for i in range(n)]
+    reach = np.zeros(n)  # each link's own: its frame to the farthest corner of its shapes' bounding box
+    for i in range(n):
+        if p.getCollisionShapeData(body, i, physicsClientId=client):
+            lo, hi = (np.asarray(v) for v in p.getAABB(body, i, physicsClientId=client))
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            reach[i] = float(np.linalg.norm(corners - origin[i], axis=1).max())
+    for j in model.group(arm_group):
+        link = next(i for i in range(n) if info[i][1].decode() == model.joint_names[j])  # the joint's child
+        if info[link][2] == p.JOINT_PRISMATIC:
+            continue
+        far = 0.0
+        for i in range(link, n):  # PyBullet numbers a link after its parent: the joint's subtree follows it
+            chain, m = 0.0, i
+            while m != link and m >= 0:
+                parent = info[m][16]
+                chain += float(np.linalg.norm(origin[m] - (origin[parent] if parent >= 0 else origin[m])))
+                if info[m][2] == p.JOINT_PRISMATIC:
+                    chain += float(info[m][9] - info[m][8])  # its travel
+                m = parent
+            if m == link:
+                far = max(far, chain + reach[i])
+        r[index[model.joint_names[j]]] = far
     return r
 
 
@@ -103,7 +128,7 @@ class WorldChecker:
         self._object_bodies: list[int] = []
         self.bodies = list(self._fixed_bodies)
         self.clearance = clearance
-        self.radii = joint_radii(self.model, arm_group)
+        self.radii = joint_radii(self.model, arm_group, self.robot.id, self.client)
         self.arm = np.array(self.model.group(arm_group))
         self.calls = 0
         self.tool = self.model.manipulator().tool_frame
