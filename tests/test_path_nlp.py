@@ -182,6 +182,17 @@ def test_level3_segment_by_segment_is_the_whole_path_optimum(planned):
         assert np.abs(Z_joint - Z_alone).max() < 1e-2
 
 
+def test_level3_in_two_processes_is_level3_in_one(planned):
+    """The segments solved half in a forked child (``planning.forked``) give the same result, bit for bit."""
+    model, _, (segments, T, kw, _) = planned
+    one = level3.optimize_paths(model, segments, T, workers=1, **kw)
+    two = level3.optimize_paths(model, segments, T, workers=2, **kw)
+    assert one.statuses == two.statuses and one.iterations == two.iterations and one.reason == two.reason
+    assert one.acc_costs == two.acc_costs and one.durations_s == two.durations_s
+    for a, b in zip(one.paths, two.paths, strict=True):
+        assert np.array_equal(a, b)
+
+
 def test_a_segment_level3_fails_on_keeps_its_warm_start_and_the_others_their_optimum(planned, monkeypatch):
     """Segment by segment: when one segment's NLP ends infeasible, that segment gets its (resampled) warm
     start back and the reason names it; the others are optimised as they would be alone."""
@@ -196,7 +207,7 @@ def test_a_segment_level3_fails_on_keeps_its_warm_start_and_the_others_their_opt
         return replace(r, violation=1.0, status="Maximum_Iterations_Exceeded") if len(calls) == 1 else r
 
     monkeypatch.setattr(level3, "_solve", first_fails)
-    res = level3.optimize_paths(model, segments, T, **kw)
+    res = level3.optimize_paths(model, segments, T, workers=1, **kw)  # one process: one list of calls
     assert res.optimised == (False, *[True] * (len(segments) - 1)) and not res.ok
     assert res.statuses[0] is level3.PathStatus.INFEASIBLE and "segment 0" in res.reason
     core = [*model.group("base"), *model.group(model.manipulator(None).group)]
@@ -227,3 +238,15 @@ def test_a_level3_path_that_collides_in_the_replay_falls_back_to_the_guided_path
     assert plan.success, plan.reason
     assert plan.level3.fallbacks == 1 and plan.level3.acc_cost is None
     assert np.linalg.norm(plan.phases[0].path[:, :2], axis=1).min() > 0.3  # not through the table any more
+
+
+def test_level3_processes_come_from_the_environment(monkeypatch):
+    from rlgp_exec.errors import RlgpError
+
+    monkeypatch.delenv(level3.PROCESSES_ENV, raising=False)
+    assert level3.default_workers() == 1  # the other core is the HAL's and perception's
+    monkeypatch.setenv(level3.PROCESSES_ENV, "2")
+    assert level3.default_workers() == 2
+    monkeypatch.setenv(level3.PROCESSES_ENV, "two")
+    with pytest.raises(RlgpError, match="RLGP_EXEC_L3_PROCESSES='two'"):
+        level3.default_workers()

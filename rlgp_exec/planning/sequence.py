@@ -212,7 +212,7 @@ class SequenceGeometry:
                              body=self.l3_body)
         self.l3 = replace(
             self.l3, attempts=self.l3.attempts + 1, solved=self.l3.solved + res.ok,
-            time_s=self.l3.time_s + res.build_s + res.solve_s, jac_nnz=res.jac_nnz, n_var=res.n_var,
+            time_s=self.l3.time_s + res.wall_s, jac_nnz=res.jac_nnz, n_var=res.n_var,
         )
         log.info("level 3: %s, acceleration cost %.3g (warm start %.3g), %d iterations, %.2f s + %.2f s, "
                  "%d rows relaxed", res.reason, res.acc_cost, res.warm_acc_cost, res.iterations, res.build_s,

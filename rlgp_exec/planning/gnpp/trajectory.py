@@ -87,7 +87,7 @@ class Trajectories:
                                  hand=self.hand, self_spheres=spheres, body=body)
             s = self.stats
             self.stats = replace(s, attempts=s.attempts + 1, solved=s.solved + res.ok,
-                                 time_s=s.time_s + res.build_s + res.solve_s, jac_nnz=res.jac_nnz, n_var=res.n_var)
+                                 time_s=s.time_s + res.wall_s, jac_nnz=res.jac_nnz, n_var=res.n_var)
             log.info("trajectories of %s (%d moves, T = %d): %s, acceleration cost %.3g (straight %.3g), "
                      "%d iterations, %.2f s + %.2f s", arm, len(mine), self.T, res.reason, res.acc_cost,
                      res.warm_acc_cost, res.iterations, res.build_s, res.solve_s)

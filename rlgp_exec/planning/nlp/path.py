@@ -9,10 +9,12 @@ the whole-path NLP is block diagonal: solving it at once or segment by segment g
 IPOPT problem each (``_solve``): each takes the iterations it needs, not those of the hardest segment
 (at once, every IPOPT iteration factorised all of them: pick_place_pr2 seeds 1-10, level-3 CPU median
 0.69 -> 0.54 s, seed 8 1.98 -> 0.77 s; sorting_pr2 seeds 1-8 median 0.70 -> 0.53 s), and a re-solve
-adds rows to the segment that violated them only. Variables time-major (waypoint by waypoint, z = [x,
-y, yaw, q_arm, a moving torso] each), the rows time-major too, so the constraint Jacobian (block
-bidiagonal) and the Lagrangian's Hessian (banded) grow linearly with the segment; both are assembled
-from that structure (``_nlp``, which takes any set of segments).
+adds rows to the segment that violated them only. Offline, the segments may be solved in two processes
+(``default_workers``, ``planning.forked``: half in a forked child, the results the same bit for bit).
+Variables time-major (waypoint by waypoint, z = [x, y, yaw, q_arm, a moving torso] each), the rows
+time-major too, so the constraint Jacobian (block bidiagonal) and the Lagrangian's Hessian (banded)
+grow linearly with the segment; both are assembled from that structure (``_nlp``, which takes any set
+of segments).
 
 At every inner waypoint and at the midpoint of every step (``_checkpoints``), built from the shared
 factors (``nlp.factors``, ``nlp.hand``), the same the keyframe NLP and GNPP use:
@@ -43,6 +45,7 @@ from __future__ import annotations
 import enum
 import itertools
 import logging
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,6 +54,8 @@ from typing import Any, overload
 import casadi as ca
 import numpy as np
 
+from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.forked import Result, fork_map
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
 from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_rows_function
 from rlgp_exec.planning.nlp.keyframes import W_BASE
@@ -69,6 +74,22 @@ FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
 PAD_STRICT = 0.3  # ... for a ``strict`` segment: a straight move has no detour in its range to keep to
+PROCESSES_ENV = "RLGP_EXEC_L3_PROCESSES"  # 1 or 2: how many processes solve segments at once
+
+
+def default_workers() -> int:
+    """Processes level 3 solves segments in (``planning.forked``): ``$RLGP_EXEC_L3_PROCESSES`` if set, else
+    1. Two take the machine's other core, which on the robot's PC is the HAL's and perception's (the CAN
+    fuzz test's heartbeat went stale beside planning tests that forked): for offline planning only."""
+    value = os.environ.get(PROCESSES_ENV)
+    if value is None:
+        return 1
+    try:
+        return max(1, int(value))
+    except ValueError:
+        raise RlgpError(f"{PROCESSES_ENV}={value!r}: not a number of processes (1 or 2)") from None
+
+
 ROUNDS = 2  # solves per segment at most (re-solves add rows the solution violates)
 # IPOPT's tolerance; feasibility is FEAS_TOL's, checked on every row after the solve. A segment alone has
 # a small objective: at 1e-3 its solve stopped at 2-4x the acceleration cost the whole-path solve reached
@@ -121,9 +142,10 @@ class PathResult:
     jac_nnz: int  # non-zeros of the constraint Jacobians
     relaxed: int  # rows bounded by the warm start's value (violated there already)
     iterations: int  # IPOPT's, all segments
-    build_s: float
+    build_s: float  # summed over the segments (in two processes they overlap)
     solve_s: float
     reason: str  # "ok", or why each failed segment did
+    wall_s: float = 0.0  # the call's own time [s]
 
     @property
     def optimised(self) -> tuple[bool, ...]:
@@ -374,8 +396,10 @@ def optimize_paths(
     self_spheres: Sequence[tuple[str, FloatArray, float]] = (),
     body: Sequence[tuple[str, Box]] = (),
     max_iter: int = 200,
+    workers: int | None = None,
 ) -> PathResult:
-    """Optimise every segment's path, each its own NLP (module docstring). ``hand``: finger spheres (tool frame,
+    """Optimise every segment's path, each its own NLP (module docstring), ``workers`` processes at once
+    (``planning.forked``; default ``default_workers()``). ``hand``: finger spheres (tool frame,
     ``nlp.hand.finger_spheres``); ``self_spheres``/``body``: the self-collision proxy
     (``nlp.hand.arm_link_spheres``, ``nlp.hand.body_obstacles``; their rows are built once per model and
     arguments, ``nlp.hand.self_rows_function``). T >= 3."""
@@ -404,32 +428,48 @@ def optimize_paths(
             shared[key] = (RobotSymbols(model, q0, manip.name, z, extra), (fn(z), lower))
         return shared[key]
 
-    blocks = [_block(model, *shared_of(seg.warm[0]), idx, seg, T, hand) for seg in segments]
-    build_s, solve_s = time.perf_counter() - t0, 0.0
-    iterations, n_var, n_con, jac_nnz, viol = 0, 0, 0, 0, 0.0
+    def one(k: int) -> Result:
+        """Segment k's block and, unless it is settled, its solve (in this process or ``fork_map``'s child)."""
+        t1 = time.perf_counter()
+        seg = segments[k]
+        b = _block(model, *shared_of(seg.warm[0]), idx, seg, T, hand)
+        out: Result = {"Zw": b.Zw, "dt": b.dt, "relaxed": b.relaxed, "settled": b.settled,
+                       "warm": _acc_cost(b.Zw.T, w), "rows_s": time.perf_counter() - t1}
+        if not b.settled:
+            r = _solve(model, [b], idx, w, T, max_iter)
+            out.update(Z=r.paths[id(b)], cost=r.cost, violation=r.violation, status=r.status,
+                       iterations=r.iterations, n_var=r.n_var, n_con=r.n_con, jac_nnz=r.jac_nnz,
+                       build_s=r.build_s, solve_s=r.solve_s)
+        return out
+
+    results = fork_map(one, range(len(segments)), default_workers() if workers is None else workers)
+    build_s = solve_s = viol = 0.0
+    iterations = n_var = n_con = jac_nnz = 0
     Zs, statuses, costs, warm_costs, reasons = [], [], [], [], []
-    for k, (seg, b) in enumerate(zip(segments, blocks, strict=True)):
-        warm = _acc_cost(b.Zw.T, w)
+    for k, (seg, r) in enumerate(zip(segments, results, strict=True)):
+        Zw, warm = _array(r["Zw"]), _number(r["warm"])
         warm_costs.append(warm)
-        if b.settled:  # optimal as it is (``_Block.settled``)
-            Zs.append(b.Zw)
+        build_s += _number(r["rows_s"])
+        if r["settled"]:  # optimal as it is (``_Block.settled``)
+            Zs.append(Zw)
             statuses.append(PathStatus.OK)
             costs.append(warm)
             continue
-        r = _solve(model, [b], idx, w, T, max_iter)
-        build_s, solve_s, iterations = build_s + r.build_s, solve_s + r.solve_s, iterations + r.iterations
-        n_var, n_con, jac_nnz = n_var + r.n_var, n_con + r.n_con, jac_nnz + r.jac_nnz
-        viol = max(viol, r.violation)
-        if r.violation > FEAS_TOL:
-            status, why = PathStatus.INFEASIBLE, f"constraints violated by {r.violation:.2e} ({r.status})"
-        elif r.cost > warm + 1e-9 and not seg.strict:
-            status, why = PathStatus.WORSE, f"acceleration cost {r.cost:.3g} > warm start's {warm:.3g}"
+        build_s, solve_s = build_s + _number(r["build_s"]), solve_s + _number(r["solve_s"])
+        iterations, n_var = iterations + int(_number(r["iterations"])), n_var + int(_number(r["n_var"]))
+        n_con, jac_nnz = n_con + int(_number(r["n_con"])), jac_nnz + int(_number(r["jac_nnz"]))
+        cost, violation = _number(r["cost"]), _number(r["violation"])
+        viol = max(viol, violation)
+        if violation > FEAS_TOL:
+            status, why = PathStatus.INFEASIBLE, f"constraints violated by {violation:.2e} ({r['status']})"
+        elif cost > warm + 1e-9 and not seg.strict:
+            status, why = PathStatus.WORSE, f"acceleration cost {cost:.3g} > warm start's {warm:.3g}"
         else:
             status, why = PathStatus.OK, ""
         statuses.append(status)
         kept = status is PathStatus.OK
-        Zs.append(r.paths[id(b)] if kept else b.Zw)
-        costs.append(r.cost if kept else warm)
+        Zs.append(_array(r["Z"]) if kept else Zw)
+        costs.append(cost if kept else warm)
         if not kept:
             reasons.append(f"segment {k}: {why}")
     paths = []
@@ -438,10 +478,23 @@ def optimize_paths(
         q[:, idx] = Z
         paths.append(np.array([model.limits.wrap(qi) for qi in q]))
     return PathResult(
-        tuple(statuses), tuple(paths), tuple(costs), tuple(warm_costs), viol, tuple(b.dt * (T - 1) for b in blocks),
-        n_var, n_con, jac_nnz, sum(b.relaxed for b in blocks), iterations, build_s, solve_s,
-        "; ".join(reasons) or "ok",
+        tuple(statuses), tuple(paths), tuple(costs), tuple(warm_costs), viol,
+        tuple(_number(r["dt"]) * (T - 1) for r in results), n_var, n_con, jac_nnz,
+        sum(int(_number(r["relaxed"])) for r in results), iterations, build_s, solve_s,
+        "; ".join(reasons) or "ok", time.perf_counter() - t0,
     )
+
+
+def _number(v: object) -> float:
+    if not isinstance(v, (int, float)):
+        raise TypeError(f"level 3: expected a number, got {type(v).__name__}")
+    return float(v)
+
+
+def _array(v: object) -> FloatArray:
+    if not isinstance(v, np.ndarray):
+        raise TypeError(f"level 3: expected an array, got {type(v).__name__}")
+    return v
 
 
 @dataclass(frozen=True)
