@@ -530,3 +530,25 @@ def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2
     ok, _ = ik.solve("right_arm", np.array([-0.35, 0.15, 0.745]), lib.home_q("right_arm"))
     assert not ok and ik.n_solves - n0 == 2 + RESTARTS  # every start tried
     assert ik._solvers["right_arm"][0].stats()["iter_count"] <= IK_MAX_ITER
+
+
+def test_fixed_base_ik_gives_the_same_answers_with_the_infeasibility_heuristics(pr2, monkeypatch):
+    """``IK_FIXED_BASE`` only ends hopeless starts sooner: reachable grasps and points out of reach (across
+    the body) get the same answers as without it."""
+    from rlgp_exec.planning.gnpp import guess
+
+    lib = FactorLib(pr2, _tower(["b1", "b2", "b3"], ["(on b1 goal_region)"]))
+    asks = [(arm, lib.start_pose(o)[:3]) for o in ("b1", "b2", "b3") for arm in lib.arms]
+    asks += [("right_arm", np.array([-0.35, 0.15, 0.745])), ("left_arm", np.array([0.35, -0.15, 0.745]))]
+
+    def answers() -> list[tuple[bool, np.ndarray]]:
+        ik = TopIK(lib)
+        return [ik.solve(arm, pos, lib.home_q(arm)) for arm, pos in asks]
+
+    fast = answers()
+    monkeypatch.setattr(guess, "IK_FIXED_BASE", {})
+    plain = answers()
+    assert [ok for ok, _ in fast] == [ok for ok, _ in plain]
+    assert {ok for ok, _ in fast} == {True, False}  # both kinds asked
+    for (_, q1), (_, q2) in zip(fast, plain, strict=True):
+        np.testing.assert_allclose(q1, q2, atol=1e-9)

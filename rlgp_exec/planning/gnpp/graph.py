@@ -8,6 +8,7 @@ A subgraph is represented by its factors (Def. 4.2 with X_M = the variables its 
 from __future__ import annotations
 
 import enum
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 
 import networkx as nx
@@ -20,6 +21,7 @@ __all__ = [
     "Relaxation",
     "components",
     "describe",
+    "generalise",
     "relax",
     "semantic_graph",
     "structure",
@@ -154,6 +156,66 @@ def to_forbidden(factors: Iterable[Factor]) -> ForbiddenSequence:
         pos, neg = by_t.get(t, (set(), set()))
         seq.append(PartialState(frozenset(pos), frozenset(neg)))
     return ForbiddenSequence(tuple(seq))
+
+
+#: the one-variable factors on an object's pose that hold all along the pose's ``Equal`` chain once they hold
+#: at one end (the chain makes the poses equal): a grasp while held, a placement while resting there
+_CARRIED = ("Grasp", "Place")
+#: ... and the stacking factor, on two poses: it stays where it is, its partial states reduced as theirs
+_STACKED = "On"
+
+
+def generalise(factors: Sequence[Factor]) -> tuple[Factor, ...]:
+    """A conflict with each ``Grasp`` / ``Place`` factor moved along its object's ``Equal`` chain to the
+    step where another factor of the conflict uses the pose, the chain dropped, and its partial states
+    reduced to the fact that carries it to that step: (holding m o) for a grasp, (on o s) and not
+    (at-init o) for a placement or a stacking (``On``, left at its step). The same NLP up to
+    ``presolve`` (the chain made the poses one); its ``to_forbidden`` names neither where nor how many
+    steps before the object was picked up or put down. Sound for the plans the planner checks (pick,
+    place, stack): holding at t means picked at some p <= t (a ``Grasp`` at p, ``Equal`` from p to t);
+    resting on s, not at its start, means put on s at some p <= t (a ``Place`` or ``On`` at p, ``Equal``
+    since, for s too: an object with another on it is not picked). On Hanoi the same "arm m cannot put
+    o on s" was learnt once per pick site and holding time (6 of 12 conflicts). Other factors stay."""
+    fs = list(factors)
+    users = Counter(v for f in fs if f.kind != "Equal" for v in f.vars)
+    chain: dict[Var, list[tuple[Var, Factor]]] = {}
+    for f in fs:
+        if f.kind == "Equal":
+            a, b = f.vars
+            chain.setdefault(a, []).append((b, f))
+            chain.setdefault(b, []).append((a, f))
+    dropped: set[Factor] = set()
+    out: list[Factor] = []
+    for f in fs:
+        if f.kind == _STACKED:
+            out.append(Factor(f.key, f.vars, ((f.times[1], _carrier(f)),)))
+            continue
+        if f.kind not in _CARRIED:
+            out.append(f)
+            continue
+        start = cur = f.vars[0]
+        prev, walked = None, []
+        while users[cur] == (1 if cur == start else 0):  # nothing else of the conflict uses this pose
+            step = [(v, e) for v, e in chain.get(cur, []) if v != prev]
+            if len(step) != 1:
+                break
+            walked.append(step[0][1])
+            prev, cur = cur, step[0][0]
+        if cur != start and users[cur] == 0:  # a chain that leads nowhere (not minimal): left as found
+            out.append(f)
+            continue
+        dropped.update(walked)
+        out.append(Factor(f.key, (cur,), ((cur.t, _carrier(f)),)))
+    return tuple(g for g in out if g not in dropped)
+
+
+def _carrier(f: Factor) -> PartialState:
+    """The partial state that makes ``f`` (``_CARRIED`` or ``_STACKED``) hold at a step (``generalise``)."""
+    o = f.key[1]
+    if f.kind == "Grasp":
+        arm = next(a[1] for _, p in f.partial for a in p.pos if a[0] == "holding" and a[2] == o)
+        return PartialState(frozenset({("holding", arm, o)}))
+    return PartialState(frozenset({("on", o, f.key[2])}), frozenset({("at-init", o)}))
 
 
 def describe(factors: Iterable[Factor]) -> str:

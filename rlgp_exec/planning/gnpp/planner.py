@@ -2,7 +2,8 @@
 
 Loop: a logic plan for the current (reformulated) task -> its graph-NLP -> a small infeasible
 subgraph (``conflicts``) or a solution -> forbid the conflict's partial-state sequence in the logic
-task (``symbolic.reformulate``, the paper's compilation) -> again. A solution is laid out as joint
+task (``symbolic.reformulate``, the paper's compilation; the sequence generalised along the objects'
+``Equal`` chains first, ``graph.generalise``) -> again. A solution is laid out as joint
 paths and replayed (``validate_plan``); a replay failure forbids that whole state sequence.
 
 Variants (paper Sec. VIII-C): ``gnpp_t`` (time search on the full graph: conflicts are whole state
@@ -34,7 +35,7 @@ from rlgp_exec.planning.gnpp.conflicts import (
 )
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.geometry import FactorLib
-from rlgp_exec.planning.gnpp.graph import to_forbidden, variables
+from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
@@ -233,7 +234,7 @@ def plan_gnpp(
             return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s CPU ({'; '.join(reasons[-2:])})", it=it)
         if conflict is not None:
             found.append(conflict)
-            forbidden.append(to_forbidden(conflict.factors))
+            forbidden.append(to_forbidden(generalise(conflict.factors)))
             log.info("%s iteration %d: %s", variant, it, forbidden[-1])
             continue
         if values is None:  # every conflict found was refuted: no proof either way, block this plan
