@@ -199,7 +199,7 @@ class FactorLib:
         def digest(v: FloatArray) -> str:
             return ",".join(f"{x:.4f}" for x in np.asarray(v, float))
 
-        ctx = {("Ref", o): digest(self.start_pose(o)) for o in self.objects}
+        ctx: dict[tuple[str, ...], str] = {("Ref", o): digest(self.start_pose(o)) for o in self.objects}
         ctx.update({("RefQ", m): digest(self.home_q(m)) for m in self.arms})
         return ctx
 

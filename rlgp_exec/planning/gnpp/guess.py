@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -61,7 +62,8 @@ class TopIK:
             g = ca.vertcat(T[:3, 3] - p[:3], a[2], c[2], col.fn(q))
             lbg = np.r_[np.zeros(3), -1.0, 0.0, col.lower]
             ubg = np.r_[np.zeros(3), -np.cos(MAX_TILT), 0.0, col.upper]
-            opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": IK_MAX_ITER}
+            opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                                    "ipopt.max_iter": IK_MAX_ITER}
             if not self.lib.mobile:
                 opts |= IK_FIXED_BASE
             s = ca.nlpsol(f"top_ik_{arm}", "ipopt", {"x": q, "p": p, "f": ca.sumsqr(q - p[3:]), "g": g}, opts)
@@ -172,7 +174,7 @@ def _clear_spot(
     size: Sequence[float],
     near: FloatArray,
     others: list[FloatArray],
-    other_sizes: list[Sequence[float]],
+    other_sizes: Sequence[Sequence[float]],
     gap: float = 0.04,
 ) -> FloatArray:
     """The xy (2,) on the surface nearest ``near`` whose footprint circle clears the other resting
@@ -227,10 +229,10 @@ def initial_guess(
                     others = [world[b][:2] for b, pb in par.items() if b != o and pb not in arms]
                     T, half, z = lib.surface(p)
                     if region:
-                        xy = _free_spot(T, half, lib.objects[o].size, others)
+                        xy = _free_spot(T, np.asarray(half, float), lib.objects[o].size, others)
                     else:
                         sizes = [lib.objects[b].size for b, pb in par.items() if b != o and pb not in arms]
-                        xy = _clear_spot(T, half, lib.objects[o].size, world[o][:2], others, sizes)
+                        xy = _clear_spot(T, np.asarray(half, float), lib.objects[o].size, world[o][:2], others, sizes)
                     world[o] = np.array([xy[0], xy[1], z + h / 2 + PLACE_LIFT, world[o][3]])
                 arm = prev.get(o)
                 if arm in arms:

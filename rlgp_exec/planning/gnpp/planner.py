@@ -220,13 +220,14 @@ def plan_gnpp(
         graph = factors_of(states, lib.arms, objects, mobile)
         guess = initial_guess(lib, ik, states, variables(graph))
         check = Checker(solver, guess, db, deadline=c0 + timeout_s)
+        values: dict | None  # the graph-NLP's solution (None: every conflict found was refuted)
         try:
             if opts is None:  # one-way: the full graph, the whole plan blocked on failure
                 if not check.feasible(graph):
                     forbidden.append(_whole(states))
                     blocked_plans += 1
                     continue
-                conflict, values = None, dict(check.last.values) if check.last else {}
+                conflict, values = None, (dict(check.last.values) if check.last else {})
             else:
                 conflict, values, n_refuted = _checked_conflict(check, graph, opts)
                 refuted += n_refuted

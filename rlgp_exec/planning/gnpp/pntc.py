@@ -145,7 +145,7 @@ def add_moves(problem: GroundProblem, arms: Sequence[str]) -> GroundProblem:
     ops = []
     for op in problem.operators:
         arm = op.action.args[0] if op.action.args else None
-        if arm in arms:
+        if arm is not None and arm in arms:
             op = Operator(op.action, op.pre, op.pre_neg | {moving(arm)}, op.add, op.delete, op.cond_effects)
         ops.append(op)
     for m in arms:
@@ -196,8 +196,8 @@ def _state_factors(
     for a, b in itertools.combinations(resting, 2):
         if par[a] == b or par[b] == a:
             continue
-        neg = [("holding", m, x) for m in arms for x in (a, b)] + [("on", a, b), ("on", b, a)]
-        out.append(Factor(("ColOO", a, b), (Var("x", a, t), Var("x", b, t)), ((t, _ps((), neg)),)))
+        apart = [("holding", m, x) for m in arms for x in (a, b)] + [("on", a, b), ("on", b, a)]
+        out.append(Factor(("ColOO", a, b), (Var("x", a, t), Var("x", b, t)), ((t, _ps((), apart)),)))
     return out
 
 
