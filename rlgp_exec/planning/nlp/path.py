@@ -91,14 +91,15 @@ def default_workers() -> int:
 
 
 ROUNDS = 2  # solves per segment at most (re-solves add rows the solution violates)
-# IPOPT's tolerance; feasibility is FEAS_TOL's, checked on every row after the solve. A segment alone has a
-# small objective: at 1e-3 its solve stops earlier than the whole-path NLP did at 1e-3 (pick_place_pr2 seed
-# 3: acceleration cost 0.0133 against 0.0038). Level 3's solves on the segments of seeds 1-12 (CPU, the
-# same blocks; whole path at 1e-3 / per segment at 1e-3, 1e-4, 1e-5): pick_place_pr2 median 0.54 / 0.49 /
-# 0.60 / 0.59 s, in all 7.5 / 5.6 / 6.7 / 7.1 s, acceleration costs summed 1.60 / 1.63 / 1.55 / 1.51;
-# sorting_pr2 median 0.38 / 0.27 / 0.32 / 0.38 s, costs 5.65 / 5.66 / 5.62 / 5.61. 1e-4: no worse paths
-# than the whole-path solve, in less time overall
-TOL = 1e-4
+# IPOPT's tolerance; feasibility is FEAS_TOL's, checked on every row after the solve. Level 3's solves on the
+# segments of seeds 1-12 (CPU, the same blocks; whole path at 1e-3 / per segment at 1e-3, 1e-4, 1e-5):
+# pick_place_pr2 median 0.54 / 0.49 / 0.60 / 0.59 s, in all 7.5 / 5.6 / 6.7 / 7.1 s, acceleration costs
+# summed 1.60 / 1.63 / 1.55 / 1.51; sorting_pr2 median 0.38 / 0.27 / 0.32 / 0.38 s, costs 5.65 / 5.66 /
+# 5.62 / 5.61. At 1e-4 the executive's pick_place_pr2 test over Zenoh knocked the placed block_b over with
+# block_c once in three CI runs (not proven the cause: a tighter tolerance ends nearer the clearance rows'
+# MARGIN, and the controller's tracking error under load can exceed 1 cm). 1e-3 is the tolerance the
+# whole-path solve had in every earlier run; per segment its paths cost within 2 % of that solve's
+TOL = 1e-3
 # the warm start is the guide, feasible but for the relaxed rows: IPOPT starts at it, not pushed 1 % of each
 # bound's range inside (its default). The level-3 NLPs of pick_place_pr2 seeds 1-6, 11, 12 and sorting_pr2
 # seeds 1-5, 7-9 replayed: 478 -> 425 iterations in all (median 27.5 -> 25.5), every optimum the same to 4
