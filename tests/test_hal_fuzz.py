@@ -222,13 +222,16 @@ def can_rig() -> Iterator[tuple[object, can.BusABC, object]]:
     sim = SimRobot("hsr")
     server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
     server.start()
-    hal = make_backend("can", bus=can.Bus(interface="virtual", channel=ch))
+    # this rig tests frame rejection: 2 s heartbeat timeouts both ways keep a loaded CI machine's late
+    # heartbeat from failing an example (the HAL's own, 0.25 s by default: with both test workers
+    # planning, a state frame once came later; the drives' consumer timeout, 100 ms in can_nodes.toml,
+    # would quick-stop them mid-example). The watchdogs themselves are tested with the real timeouts:
+    # test_can_drives_quick_stop_when_the_master_goes_silent below, test_heartbeat_loss_is_detected
+    # in test_hal_conformance
+    hal = make_backend("can", bus=can.Bus(interface="virtual", channel=ch), heartbeat_timeout=2.0)
     hal.configure()
     assert hal.wait_for_robot(10.0)
     hal.activate()
-    # this rig tests frame rejection: a 2 s master-heartbeat timeout keeps a loaded CI machine's late
-    # heartbeat (100 ms in can_nodes.toml) from quick-stopping the drives mid-example; the watchdog
-    # itself is tested with the real timeout below (test_can_drives_quick_stop_when_the_master_goes_silent)
     with server.lock:
         for d in server.drives.values():
             d.consumer = (d.consumer & 0xFFFF0000) | 2000

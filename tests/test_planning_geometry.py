@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import casadi as ca
@@ -98,6 +99,31 @@ def test_the_replay_catches_collisions_and_unmet_goals(scene):
     assert not v.collision_free and any("table_mid" in c for c in v.collisions)
     standing = validate_plan(scene, [Phase(np.array([q0, q0]), None)])
     assert standing.collision_free and not standing.goal_met and len(standing.unmet) == 2
+
+
+def test_the_replay_samples_each_segment_at_its_step_and_every_waypoint_once(scene):
+    """``sample_path``: consecutive samples at most ``step`` apart per joint (continuous joints the short
+    way round), every waypoint among them exactly once, in order, and no configuration twice in a row."""
+    from types import SimpleNamespace
+
+    from rlgp_exec.planning.validate import sample_path
+
+    model = load_robot("hsr")
+    world = SimpleNamespace(robot_model=model)
+    rng = np.random.default_rng(0)
+    lo, hi = model.limits.lower, model.limits.upper
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    for n in (1, 2, 5):
+        path = np.array([q0 + rng.uniform(-0.3, 0.3, q0.size) for _ in range(n)])
+        path = np.clip(path, np.maximum(lo, -10.0), np.minimum(hi, 10.0))
+        qs = sample_path(world, path, 0.01)
+        d = np.array([model.limits.difference(b, a) for a, b in itertools.pairwise(qs)]).reshape(-1, q0.size)
+        assert np.all(np.abs(d) <= 0.01 + 1e-12)
+        assert np.all(np.abs(d).max(axis=1) > 0.0) if n > 1 else len(qs) == 1
+        hits = [np.flatnonzero(np.all(np.isclose(qs, w, atol=1e-12), axis=1)) for w in path]
+        assert all(h.size == 1 for h in hits)
+        at = [int(h[0]) for h in hits]
+        assert at == sorted(at) and at[0] == 0 and at[-1] == len(qs) - 1
 
 
 def test_the_replay_catches_a_held_object_in_the_robots_own_body(scene):
