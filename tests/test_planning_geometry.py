@@ -503,7 +503,7 @@ def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose(
     box and the farthest sphere turned straight at it; a box just inside that reach keeps its rows."""
     from scipy.spatial.transform import Rotation
 
-    from rlgp_exec.planning.nlp.keyframe_seeds import rect_distance
+    from rlgp_exec.planning.detour import rect_distance
     from rlgp_exec.planning.nlp.keyframes import HAND_MARGIN, _near_site, finger_reach
     from rlgp_exec.reach.ik import box_sdf
     from rlgp_exec.scene.geometry import Box

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import DrawerView
 from rlgp_exec.reach.ik import ReachIK, base_circles
 from rlgp_exec.robot.model import FloatArray, RobotModel
@@ -26,7 +27,7 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 if TYPE_CHECKING:
     from rlgp_exec.planning.nlp.keyframes import Action
 
-__all__ = ["attempt_guess", "base_free", "face_roll", "graph_seed", "push_free", "rect_distance"]
+__all__ = ["attempt_guess", "base_free", "face_roll", "graph_seed", "push_free"]
 
 SEED_LOOKAHEAD = 4  # graph seeds looked at past an attempt's rank for one not tried at that keyframe yet
 SAME_SEED = 0.05  # [m, rad] an initial guess this close (every coordinate) to an earlier one is not tried again
@@ -172,12 +173,6 @@ def _ik_seed(ik: ReachIK, x: FloatArray, z0: FloatArray, rects) -> FloatArray:
     r = ik.solve(x, z0)
     z = ik.z_of(r.q)
     return z if r.ok and base_free(ik, z, rects) else z0
-
-
-def rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
-    """Distance [m] from a point to a footprint rectangle (T_world_rect (4, 4), full size (>= 2,))."""
-    local = T[:2, :2].T @ (np.asarray(xy) - T[:2, 3])
-    return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2]) / 2, 0.0)))
 
 
 def face_roll(

@@ -32,6 +32,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
@@ -47,7 +48,7 @@ from rlgp_exec.planning.nlp.factors import (
     inside_rectangle,
 )
 from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function, upper_arm_spheres
-from rlgp_exec.planning.nlp.keyframe_seeds import attempt_guess, rect_distance
+from rlgp_exec.planning.nlp.keyframe_seeds import attempt_guess
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, box_sdf
