@@ -201,7 +201,7 @@ def test_a_graph_seed_in_front_of_a_table_is_pushed_clear_not_dropped():
     path for three blocks). Pushed out, the base is clear and moved no more than needed."""
     import math
 
-    from rlgp_exec.planning.nlp.keyframes import _base_free, _push_free
+    from rlgp_exec.planning.nlp.keyframe_seeds import base_free, push_free
     from rlgp_exec.reach import ReachIK, nominal_q
     from rlgp_exec.robot import load_robot
     from rlgp_exec.scene import load_scene
@@ -216,13 +216,13 @@ def test_a_graph_seed_in_front_of_a_table_is_pushed_clear_not_dropped():
     for _ in range(20):
         z = ik.z_of(nominal_q(model, scene))
         z[:3] = [rng.uniform(-0.5, 0.5), edge - rng.uniform(0.25, 0.45), math.pi / 2 + rng.uniform(-0.5, 0.5)]
-        pushed = _push_free(ik, z, rects)
-        assert pushed is not None and _base_free(ik, pushed, rects, exact=True)
+        pushed = push_free(ik, z, rects)
+        assert pushed is not None and base_free(ik, pushed, rects, exact=True)
         assert pushed[1] <= z[1] + 1e-12 and np.allclose(pushed[2:], z[2:])  # away from the table, only the base
-        if _base_free(ik, z, rects, exact=True):
+        if base_free(ik, z, rects, exact=True):
             assert np.array_equal(pushed, z)
     z[:2] = [0.0, 0.0]  # in the middle of the table: too far to push
-    assert _push_free(ik, z, rects) is None
+    assert push_free(ik, z, rects) is None
 
 
 def test_pick_between_close_blocks_is_feasible():
@@ -269,9 +269,9 @@ def test_objects_clear_keeps_the_tool_sphere_at_its_own_margin():
 
 
 def test_graph_seed_orders_the_free_seeds_by_base_distance():
-    """_graph_seed: the free seeds nearest the previous keyframe's base first (ties in the given order);
+    """graph_seed: the free seeds nearest the previous keyframe's base first (ties in the given order);
     without a base, the given order; None past the end."""
-    from rlgp_exec.planning.nlp.keyframes import _graph_seed
+    from rlgp_exec.planning.nlp.keyframe_seeds import graph_seed
     from rlgp_exec.reach import ReachIK, nominal_q
 
     scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
@@ -285,13 +285,13 @@ def test_graph_seed_orders_the_free_seeds_by_base_distance():
     rects = [(fx.T, np.asarray(fx.size)) for fx in scene.fixtures]
     x = np.zeros(3)
     prev = np.array([0.0, -2.0])
-    got = [_graph_seed(ik, x, lambda _x: zs, rects, i, prev) for i in range(len(zs))]
+    got = [graph_seed(ik, x, lambda _x: zs, rects, i, prev) for i in range(len(zs))]
     d = [float(np.linalg.norm(z[:2] - prev)) for z in got]
     assert d == sorted(d)
     assert sorted(map(tuple, (z[:3] for z in got))) == sorted(map(tuple, (z[:3] for z in zs)))
-    assert _graph_seed(ik, x, lambda _x: zs, rects, len(zs), prev) is None
-    assert np.array_equal(_graph_seed(ik, x, lambda _x: zs, rects, 3), zs[3])
-    assert _graph_seed(ik, x, None, rects, 0, prev) is None
+    assert graph_seed(ik, x, lambda _x: zs, rects, len(zs), prev) is None
+    assert np.array_equal(graph_seed(ik, x, lambda _x: zs, rects, 3), zs[3])
+    assert graph_seed(ik, x, None, rects, 0, prev) is None
 
 
 def test_merged_constraints_equal_the_rows():
@@ -503,7 +503,8 @@ def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose(
     box and the farthest sphere turned straight at it; a box just inside that reach keeps its rows."""
     from scipy.spatial.transform import Rotation
 
-    from rlgp_exec.planning.nlp.keyframes import HAND_MARGIN, _near_site, _rect_distance, finger_reach
+    from rlgp_exec.planning.detour import rect_distance
+    from rlgp_exec.planning.nlp.keyframes import HAND_MARGIN, _near_site, finger_reach
     from rlgp_exec.reach.ik import box_sdf
     from rlgp_exec.scene.geometry import Box
 
@@ -521,7 +522,7 @@ def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose(
             lo, hi = 0.0, 5.0  # the box's centre along u where its footprint is reach + beyond from the site
             for _ in range(60):
                 T[:2, 3] = site + u * (lo + hi) / 2
-                lo, hi = (lo, (lo + hi) / 2) if _rect_distance(site, T, size) > reach + beyond else ((lo + hi) / 2, hi)
+                lo, hi = (lo, (lo + hi) / 2) if rect_distance(site, T, size) > reach + beyond else ((lo + hi) / 2, hi)
             box = Box("b", tuple(size), T.copy(), (0.0, 0.0, 0.0, 1.0))
             assert (box in _near_site([box], site, reach)) == kept
             if kept:
@@ -539,7 +540,7 @@ def test_boxes_out_of_the_fingers_reach_from_a_site_are_clear_in_the_worst_pose(
 def test_a_pick_seed_closes_the_fingers_across_the_faces_square_to_its_neighbour(side):
     """With a neighbour off one face of a block, the seed's wrist roll puts the closing axis along the other
     face axis (to within the 15 degree steps), whatever roll the position IK left; without one, z is kept."""
-    from rlgp_exec.planning.nlp.keyframes import _face_roll
+    from rlgp_exec.planning.nlp.keyframe_seeds import face_roll
     from rlgp_exec.reach.ik import ReachIK
 
     scene = load_scene(SORTING.parent / "pick_place_pr2.toml")
@@ -554,11 +555,11 @@ def test_a_pick_seed_closes_the_fingers_across_the_faces_square_to_its_neighbour
     assert r.ok
     z = ik.z_of(r.q)
     neighbour = T_obj[:3, 3] + 0.09 * T_obj[:3, side]
-    assert np.array_equal(_face_roll(model, ik, z, T_obj, [T_obj[:3, 3] + [0.5, 0.0, 0.0]]), z)
+    assert np.array_equal(face_roll(model, ik, z, T_obj, [T_obj[:3, 3] + [0.5, 0.0, 0.0]]), z)
     for turn in (0.0, 0.7, -1.2):
         z0 = z.copy()
         z0[-1] += turn
-        zr = _face_roll(model, ik, z0, T_obj, [neighbour])
+        zr = face_roll(model, ik, z0, T_obj, [neighbour])
         c = model.fk(ik.q_of(zr), ik.tool)[:3, :3] @ np.asarray(model.manipulator().closing)
         across = T_obj[:2, 1 - side]
         assert abs(c[:2] @ across) / np.linalg.norm(c[:2]) >= np.cos(np.radians(7.6))

@@ -14,6 +14,8 @@ Drawers (``nlp.drawer_factors``): ``take_knob`` puts the hand on the knob where 
 the drawer's prismatic joint by the change of opening; the knob is let go at the end); ``drop`` holds
 the object upright over the pulled-out part of an open drawer, a little below or above its rim. The
 drawer's boxes, at each keyframe's opening, are obstacles (but not the one whose knob the hand is on).
+
+Each start's initial guess comes from ``nlp.keyframe_seeds``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
@@ -45,9 +48,10 @@ from rlgp_exec.planning.nlp.factors import (
     inside_rectangle,
 )
 from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function, upper_arm_spheres
+from rlgp_exec.planning.nlp.keyframe_seeds import attempt_guess
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
-from rlgp_exec.reach.ik import ReachIK, arm_spheres, base_circles, box_sdf
+from rlgp_exec.reach.ik import ReachIK, arm_spheres, box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
@@ -64,14 +68,11 @@ ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeas
 # of the keyframe solves of pick_place_pr2 and sorting_pr2 seeds 0-19 and table_clearing_hsr seeds 0-5,
 # none that succeeded spent more than 28 successive iterations there
 MAX_RESTO_ITER = 100
-SEED_LOOKAHEAD = 4  # graph seeds looked at past an attempt's rank for one not tried at that keyframe yet
-SAME_SEED = 0.05  # [m, rad] an initial guess this close (every coordinate) to an earlier one is not tried again
 PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
-NEIGHBOUR_NEAR = 0.15  # [m] an object this close (centres, in the plane) to a picked one sets the grasp's seed roll
 REACH_SLACK = 0.05  # [m] boxes this much beyond what the fingers can reach from an action's site keep their rows too
 FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) the fingers may reach sideways
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
@@ -131,90 +132,6 @@ def _target_surface(scene: Scene, target: str) -> tuple[FloatArray, tuple[float,
     return T, (fx.size[0] / 2, fx.size[1] / 2), float(T[2, 3])
 
 
-def _free_heading(ik: ReachIK, x: FloatArray, rng: np.random.Generator, rects, tries: int = 24) -> float:
-    """A random base heading [rad] for reaching x whose initial base (``ik.guess``) stands off every
-    footprint rectangle in ``rects`` ((T, size): fixtures, open drawers) by the base's radius; any
-    heading if none does."""
-    for _ in range(tries):
-        yaw = rng.uniform(-math.pi, math.pi)
-        if _base_free(ik, ik.guess(x, yaw), rects):
-            return yaw
-    return rng.uniform(-math.pi, math.pi)
-
-
-def _graph_seed(
-    ik: ReachIK, x: FloatArray, seeds, rects, i: int, base_xy: FloatArray | None = None
-) -> FloatArray | None:
-    """The i-th of ``seeds(x)`` (z (n,) near x) whose base stands off the footprints in ``rects`` (open
-    drawers included), ordered by their base's distance [m] to ``base_xy`` (2,) (the previous
-    keyframe's base: a keyframe on the near side of a table, not across it, keeps the guided path
-    between them a straight transport), else as ``seeds`` gives them; None when there are not that many."""
-    if seeds is None:
-        return None
-    free = [z for z in (_push_free(ik, z0, rects) for z0 in seeds(x)) if z is not None]
-    if base_xy is not None:
-        free.sort(key=lambda z: float(np.linalg.norm(z[:2] - base_xy)))  # stable: ties keep the graph's order
-    return free[i] if i < len(free) else None
-
-
-def _push_free(ik: ReachIK, z: FloatArray, rects, margin: float = 0.01, max_push: float = 0.3) -> FloatArray | None:
-    """z with its base pushed straight out of the footprint rectangles its NLP footprint circles overlap
-    (a graph node's base stands clear of the real, smaller mesh; one enclosing circle kept the PR2's
-    square base 0.47 m from a table it faces at 0.33 m: no seed in front of the table), or None when
-    that takes more than ``max_push`` [m] or does not clear them."""
-    z = np.asarray(z, float).copy()
-    start = z[:2].copy()
-    for _ in range(4):
-        if _base_free(ik, z, rects, exact=True):
-            return z if float(np.linalg.norm(z[:2] - start)) <= max_push else None
-        c, s = math.cos(z[2]), math.sin(z[2])
-        for cx, cy, r in base_circles(ik.model):
-            p = z[:2] + np.array([c * cx - s * cy, s * cx + c * cy])
-            for T, size in rects:
-                local = T[:2, :2].T @ (p - T[:2, 3])
-                half = np.asarray(size[:2]) / 2
-                outside = np.maximum(np.abs(local) - half, 0.0)
-                d = float(np.linalg.norm(outside))
-                if d > r + margin / 2:
-                    continue
-                if d > 1e-9:  # outside: away from the nearest point
-                    n_local = np.sign(local) * outside / d
-                    push = r + margin - d
-                else:  # centre inside: out across the nearest side
-                    k = int(np.argmin(half - np.abs(local)))
-                    n_local = np.zeros(2)
-                    n_local[k] = 1.0 if local[k] >= 0 else -1.0
-                    push = float(half[k] - abs(local[k])) + r + margin
-                z[:2] += T[:2, :2] @ n_local * push
-    return None
-
-
-def _base_free(ik: ReachIK, z: FloatArray, rects, exact: bool = False) -> bool:
-    """The base of z stands off every footprint rectangle in ``rects``: by the radius of one circle round
-    the whole footprint (for random starts: conservative, any heading), or, ``exact``, each of the NLP's
-    footprint circles where z's heading (z[2]) puts it."""
-    if not exact:
-        radius = max(math.hypot(cx, cy) + r for cx, cy, r in base_circles(ik.model))
-        return all(_rect_distance(z[:2], T, size) > radius for T, size in rects)
-    c, s = math.cos(z[2]), math.sin(z[2])
-    centres = [(z[0] + c * cx - s * cy, z[1] + s * cx + c * cy, r) for cx, cy, r in base_circles(ik.model)]
-    return all(_rect_distance(np.array([x, y]), T, size) > r for x, y, r in centres for T, size in rects)
-
-
-def _ik_seed(ik: ReachIK, x: FloatArray, z0: FloatArray, rects) -> FloatArray:
-    """Position IK for x from z0, when its base stays off ``rects`` (the IK knows only the fixtures, not
-    an open drawer); else z0 itself."""
-    r = ik.solve(x, z0)
-    z = ik.z_of(r.q)
-    return z if r.ok and _base_free(ik, z, rects) else z0
-
-
-def _rect_distance(xy: FloatArray, T: FloatArray, size: FloatArray) -> float:
-    """Distance [m] from a point to a footprint rectangle (T_world_rect (4, 4), full size (>= 2,))."""
-    local = T[:2, :2].T @ (np.asarray(xy) - T[:2, 3])
-    return float(np.linalg.norm(np.maximum(np.abs(local) - np.asarray(size[:2]) / 2, 0.0)))
-
-
 def pinned_conflict(
     model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None
 ) -> str | None:
@@ -268,38 +185,9 @@ def finger_reach(spheres: Sequence[tuple[FloatArray, float]]) -> float:
     return max((float(np.linalg.norm(c)) + r for c, r in spheres), default=0.0)
 
 
-def _face_roll(
-    model: RobotModel, ik: ReachIK, z: FloatArray, T_obj: FloatArray, others: list[FloatArray]
-) -> FloatArray:
-    """z with the wrist's last joint turned so that the fingers close along the object's face axis (x or y of
-    T_obj (4, 4)) more nearly square to the direction of its nearest neighbour (``others``: centres (3,) [m]),
-    one within NEIGHBOUR_NEAR; z as it is when none is. Along the other axis the open fingers reach towards
-    the neighbour (pick_place_pr2 seed 2: block_c 9 cm from block_a, 4 starts failed on that grasp)."""
-    d = [o[:2] - T_obj[:2, 3] for o in others if np.linalg.norm(o[:2] - T_obj[:2, 3]) < NEIGHBOUR_NEAR]
-    if not d:
-        return z
-    d_near = min(d, key=lambda v: float(np.linalg.norm(v)))
-    d_near = d_near / max(float(np.linalg.norm(d_near)), 1e-9)
-    want = min((T_obj[:2, 0], T_obj[:2, 1]), key=lambda ax: abs(float(ax @ d_near)))
-    closing = np.asarray(ik.manip.closing, float)
-
-    def misalign(zz: FloatArray) -> float:  # |sin| of the angle between the closing axis and +-want, in the plane
-        c = model.fk(ik.q_of(zz), ik.tool)[:3, :3] @ closing
-        return abs(float(c[0] * want[1] - c[1] * want[0])) / max(float(np.linalg.norm(c[:2])), 1e-9)
-
-    best, best_m = z, misalign(z)
-    for turn in np.linspace(-math.pi / 2, math.pi / 2, 13):  # the roll joint, in 15 degree steps (fingers: mod pi)
-        zz = z.copy()
-        zz[-1] = np.clip(z[-1] + turn, ik.lo[-1], ik.hi[-1])
-        m = misalign(zz)
-        if m < best_m - 1e-6:
-            best, best_m = zz, m
-    return best
-
-
 def _near_site(boxes: list[Box], site: FloatArray, reach: float) -> list[Box]:
     """The boxes whose footprint (yaw-only boxes) comes within ``reach`` [m] of ``site`` (x y (2,), world)."""
-    return [b for b in boxes if _rect_distance(site, b.T, np.asarray(b.size)) < reach]
+    return [b for b in boxes if rect_distance(site, b.T, np.asarray(b.size)) < reach]
 
 
 def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatArray]) -> dict[str, FloatArray]:
@@ -721,39 +609,11 @@ def solve_keyframes(
         if _attempt and deadline is not None and cpu_clock() > deadline:
             log.info("keyframes: deadline reached after %d starts", _attempt)
             break
-        init: list[FloatArray] = []
-        for k, x in enumerate(targets):
-            if k in keep:
-                init.append(keep[k])
-                continue
-            if x is None:  # follows the drawer: the previous keyframe, the base shifted along the axis
-                a = actions[k]
-                z_follow = init[-1].copy()
-                moved_m = opening_at[k][a.obj] - opening_at[k - 1][a.obj]
-                z_follow[:2] += moved_m * drawers[a.obj].axis_world[:2]
-                init.append(z_follow)
-                continue
-            prev_xy = init[-1][:2] if init else z_start[:2]
-            z = None
-            if _attempt % 2 == 0:  # a reachability-graph node near the target, shifted onto it: the first one
-                # from this attempt's rank on whose IK seed was not tried at this keyframe already
-                for i in range(_attempt // 2, _attempt // 2 + SEED_LOOKAHEAD):
-                    z_near = _graph_seed(ik, x, seeds, footprints_at[k], i, prev_xy)
-                    if z_near is None:
-                        break
-                    z_try = _ik_seed(ik, x, z_near, footprints_at[k])
-                    if not any(np.max(np.abs(z_try - z_old)) < SAME_SEED for z_old in tried[k]):
-                        z = z_try
-                        break
-            if z is None:  # else a random free base heading
-                z = _ik_seed(ik, x, ik.guess(x, _free_heading(ik, x, rng, footprints_at[k])), footprints_at[k])
-            a = actions[k]
-            if a.name == "pick" and objs[a.obj].shape != "cylinder":  # fingers across the faces away from neighbours
-                z = _face_roll(model, ik, z, poses[a.obj], [T[:3, 3] for m, T in poses.items() if m != a.obj])
-            if _attempt % 2 == 1:  # the grasp's roll: a quarter turn of the wrist on every other start
-                z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])
-            tried[k].append(z.copy())
-            init.append(z)
+        init = attempt_guess(
+            _attempt, model=model, ik=ik, actions=actions, targets=targets, footprints_at=footprints_at,
+            opening_at=opening_at, drawers=drawers, poses=poses, objs=objs, z_start=z_start, seeds=seeds, rng=rng,
+            keep=keep, tried=tried,
+        )
         z_init = np.concatenate(init)
         x_init = np.r_[z_init, np.asarray(prob.aux0(z_init)).reshape(-1)]
         res, viol, worst = solve(x_init, 0.0, 1.0, z_init)  # stage 1: feasible near the seeds
