@@ -212,3 +212,53 @@ def test_a_continuous_joint_crosses_pi_the_short_way():
         sim.step(0.01)
     assert abs(math.remainder(sim.measured_q()[i] - (-3.3), 2 * math.pi)) < 0.01
     assert -math.pi <= sim.measured_q()[i] < math.pi  # reported wrapped
+
+
+@pytest.mark.parametrize("robot", ["pr2", "hsr"])
+def test_a_grasped_object_keeps_its_pose_in_the_hand_while_the_arm_moves(robot):
+    """GRASP fixes the object to the palm where the fingers closed on it: lifted and swung under gravity it
+    stays put in the tool frame (within 2 mm). A constraint's frames are the links' centres of mass: the
+    PR2's palm has its own 6.6 cm out along the tool axis, and a frame taken as the palm's URDF pose let
+    every held block slide that far down the fingers (carried 6.6 cm below the planned grasp)."""
+    from rlgp_exec.hal.sim_physics import SimRobot
+    from rlgp_exec.hal.types import GripperCommand, JointSetpoint
+
+    sim = SimRobot(robot)
+    try:
+        c, man = sim.client, sim.model.manipulator()
+        p.setGravity(0, 0, 0, physicsClientId=c)  # the block waits between the open fingers
+        sim.step(1.0)
+        T_tool = sim.robot.link_pose(man.tool_frame)
+        approach, closing = np.asarray(man.approach, float), np.asarray(man.closing, float)
+        third = np.cross(approach, closing)
+        R = T_tool[:3, :3] @ np.column_stack([approach, closing, third])  # block x y z: approach, closing, third
+        centre = T_tool[:3, 3] + T_tool[:3, :3] @ (0.025 * approach)  # 2.5 cm into the hand, as a top grasp
+        half = [0.05, 0.025, 0.025]
+        from scipy.spatial.transform import Rotation
+
+        block = p.createMultiBody(
+            0.1, p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c), -1, centre.tolist(),
+            Rotation.from_matrix(R).as_quat().tolist(), physicsClientId=c,
+        )
+        sim.objects["block"] = block
+        T_grasp = np.linalg.inv(T_tool) @ sim.object_pose("block")  # where the fingers close on it
+        assert sim.gripper(GripperCommand.grasp(10.0))
+        sim.step(1.5)
+        assert sim.held == "block"
+        p.setGravity(0, 0, -9.81, physicsClientId=c)
+        idx = [i for i in sim.model.group(man.group) if i >= 3]  # the arm's joints (not a base's)
+        names = [sim.model.joint_names[i] for i in idx]
+        q = sim.measured_q()[idx]
+        lo, hi = sim.model.limits.lower[idx], sim.model.limits.upper[idx]
+        worst = 0.0
+        for k in range(1, 5):  # the arm swings, each joint a little, four times
+            target = np.clip(q + 0.15 * (-1) ** k, lo + 0.01, hi - 0.01)
+            assert sim.set_joint_targets(JointSetpoint(names, target))
+            for _ in range(20):
+                sim.step(0.05)
+                T = np.linalg.inv(sim.robot.link_pose(man.tool_frame)) @ sim.object_pose("block")
+                worst = max(worst, float(np.linalg.norm(T[:3, 3] - T_grasp[:3, 3])))
+        assert np.linalg.norm(sim.robot.link_pose(man.tool_frame)[:3, 3] - T_tool[:3, 3]) > 0.02  # it moved
+        assert worst < 2e-3, worst
+    finally:
+        sim.close()

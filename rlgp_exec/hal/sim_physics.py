@@ -251,12 +251,16 @@ class SimRobot:
     def _attach(self, name: str, body: int, link: int = -1) -> None:
         """Hold ``body`` (its ``link``: a cabinet's drawer for a knob grasp) fixed to the palm."""
         cid, rid = self.client, self.robot.id
-        T_palm = self.robot.link_pose(self.manip.palm_frame)
-        if link < 0:
+        # a constraint's frames are relative to the links' centres of mass (inertial frames), not their URDF
+        # frames: the PR2's palm has its centre of mass 6.6 cm out along the tool axis, and a frame taken
+        # from the URDF pose pulled every held block that far down the fingers (it slid until the fingertips
+        # pinched its top, then hung 6.6 cm below the planned grasp and once swept a standing block away)
+        palm_pos, palm_orn = p.getLinkState(rid, self._palm, physicsClientId=cid)[0:2]
+        if link < 0:  # a base's pose is its inertial frame's
             pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         else:
-            pos, orn = p.getLinkState(body, link, physicsClientId=cid)[4:6]
-        inv_pos, inv_orn = p.invertTransform(T_palm[:3, 3].tolist(), _quat(T_palm))
+            pos, orn = p.getLinkState(body, link, physicsClientId=cid)[0:2]
+        inv_pos, inv_orn = p.invertTransform(palm_pos, palm_orn)
         rel_pos, rel_orn = p.multiplyTransforms(inv_pos, inv_orn, pos, orn)
         self._constraint = p.createConstraint(
             rid,
