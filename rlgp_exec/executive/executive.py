@@ -25,13 +25,14 @@ from rlgp_exec.executive.states import ExecState, StateMachine
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
+from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.validate import Phase, goal_holds
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene, scene_to_dict
 from rlgp_exec.scene.literals import parse_goal
-from rlgp_exec.scene.types import Goal
+from rlgp_exec.scene.types import Goal, Literal
 from rlgp_exec.timing import TRACKING_HEADROOM, Trajectory, time_parameterize
 
 __all__ = ["Executive", "TaskResult", "TaskStatus"]
@@ -219,25 +220,43 @@ class Executive:
         if self.recorder is not None:
             self.recorder.write("/detections", {"source": type(self.objects).__name__, "poses": dict(poses)})
 
-    def _world_check(self, plan_scene: Scene):
+    def _world_check(self, plan_scene: Scene, phases: Sequence[Phase]):
         """Before and during every phase (at the actor's world-check rate), with a sensing source: the
-        sensed poses (objects, drawers) are recorded, so a replay shows the world moving; before and
-        during a phase that ends in a grasp: is the object still where the plan assumed?"""
+        sensed poses (objects, drawers) are recorded, so a replay shows the world moving; and every object
+        the plan has not grasped yet must still stand where the plan assumed it (the one phase k grasps,
+        and the obstacles its paths were checked against: a standing block pushed 12 cm by a held one once
+        went unnoticed for a minute, until its own pick). Objects in a drawer (they ride with it) and the
+        start's held object are left out; a placed object lands where it lands."""
+        openings = dict(plan_scene.start.openings)
+        poses0 = {o.name: o.T for o in plan_scene.objects}
+        in_drawer = {
+            o.name for o in plan_scene.objects for c in drawer_views(plan_scene)
+            if goal_holds(plan_scene, Literal("in", (o.name, c)), poses0, openings)[0]
+        }
+        touched_before: list[set[str]] = [set() for _ in phases]  # grasped in an earlier phase (or held at the start)
+        seen: set[str] = {plan_scene.start.held} if plan_scene.start.held else set()
+        for k, ph in enumerate(phases):
+            touched_before[k] = set(seen)
+            if ph.grasp is not None:
+                seen.add(ph.grasp)
 
         def check(k: int, ph: Phase, st: RobotState) -> Violation | None:
             if not self.objects.senses:
                 return None
             poses = self.objects.poses()
             self._record_detections(poses)
-            if ph.grasp is None:
-                return None
-            T = poses.get(ph.grasp)
-            if T is None:
-                return None  # not seen now: go on the last estimate
-            planned = plan_scene.object(ph.grasp).pose
-            d = float(np.linalg.norm(T[:2, 3] - np.asarray(planned[:2])))
-            if d > self.tol.object_moved:
-                return Violation("object_moved", Reaction.REPLAN, f"{ph.grasp} moved {d * 1000:.0f} mm since planning")
+            for o in plan_scene.objects:
+                if o.name in touched_before[k] or o.name in in_drawer:
+                    continue
+                T = poses.get(o.name)
+                if T is None:
+                    continue  # not seen now: go on the last estimate
+                d = float(np.linalg.norm(T[:2, 3] - np.asarray(o.pose[:2])))
+                if d > self.tol.object_moved:
+                    what = "to be grasped" if o.name == ph.grasp else "standing"
+                    return Violation(
+                        "object_moved", Reaction.REPLAN, f"{o.name} ({what}) moved {d * 1000:.0f} mm since planning"
+                    )
             return None
 
         return check
@@ -414,7 +433,7 @@ class Executive:
             self.hal.activate()
         self.actor.start(st)
         c0 = self.actor.cycles
-        out = self.actor.run_phases(list(plan.phases), trajectories, self.held, self._world_check(scene))
+        out = self.actor.run_phases(list(plan.phases), trajectories, self.held, self._world_check(scene, plan.phases))
         return out, (self.actor.cycles - c0) * self.actor.period
 
     def _hand_after(self, plan: Plan, outcome: ActOutcome, scene: Scene) -> None:

@@ -60,7 +60,7 @@ class Tolerances:
     track_joint: float = 0.15  # [rad | m] commanded - measured, during a segment
     track_base_xy: float = 0.10  # [m]
     track_base_yaw: float = 0.20  # [rad]
-    object_moved: float = 0.02  # [m] sensed vs world model before acting on an object
+    object_moved: float = 0.02  # [m] sensed vs planned, every object the plan has not grasped yet
 
 
 def joint_error(model: RobotModel, q_a: FloatArray, q_b: FloatArray) -> FloatArray:
