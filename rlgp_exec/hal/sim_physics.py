@@ -359,9 +359,3 @@ class SimRobot:
             self.world.close()
         elif p.isConnected(self.client):
             p.disconnect(self.client)
-
-
-def _quat(T: FloatArray) -> list[float]:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(T[:3, :3]).as_quat().tolist()
