@@ -156,11 +156,14 @@ def sim_exec(tmp_path):
     hal.shutdown()
 
 
-def test_a_standing_object_pushed_mid_plan_is_seen_and_the_task_planned_again(tmp_path):
+@pytest.mark.parametrize("when", ["approaching", "holding"])
+def test_a_standing_object_pushed_mid_plan_is_seen_and_the_task_planned_again(tmp_path, when):
     """Every object the plan has not grasped yet must stay where the plan assumed it, not only the next
     one to pick: a standing cup (in no goal) pushed 6 cm while the robot carries out the plan is an
-    object_moved violation naming it, before the next phase moves, and the task is planned again from the
-    sensed world (before, it went unnoticed: the paths ahead had been checked against the cup's old place)."""
+    object_moved violation naming it, before the next motion, and the task is planned again from the
+    sensed world (before, it went unnoticed: the paths ahead had been checked against the cup's old place).
+    Pushed right after the grasp, the new plan starts with the block in the hand, resting on the table:
+    it leaves vertically first (before, no guided path started there and the task failed)."""
     d = scene_to_dict(load_scene(SCENE))
     d["object"].append({"name": "cup", "size": [0.05, 0.05, 0.08], "pose": [0.85, -0.3, 0.49, 0.0], "color": "green"})
     scene = scene_from_dict(d, "shelf_hsr + cup")
@@ -171,23 +174,33 @@ def test_a_standing_object_pushed_mid_plan_is_seen_and_the_task_planned_again(tm
     pushed: list[int] = []
     cycle = ex.actor.cycle
 
-    def pushing_cycle():  # half a second into the first motion (the executive's thread: the sim is not shared)
-        out = cycle()
-        if not pushed and ex.sm.state is ExecState.EXECUTING and ex.actor.cycles > 50:
+    def push() -> None:  # in the executive's thread: the sim is not shared
+        if not pushed:
             hal.sim.push_object("cup", 0.0, 0.06)
             pushed.append(ex.actor.cycles)
+
+    def pushing_cycle():  # half a second into the first motion
+        out = cycle()
+        if ex.sm.state is ExecState.EXECUTING and ex.actor.cycles > 50:
+            push()
         return out
 
-    ex.actor.cycle = pushing_cycle  # type: ignore[method-assign]
+    if when == "approaching":
+        ex.actor.cycle = pushing_cycle  # type: ignore[method-assign]
+    else:  # as the phase after the grasp (the lift) begins
+        ex.actor.on_phase = lambda k, n: push() if k == 1 else None
     try:
         result = ex.run()
     finally:
         rec.close()
         hal.shutdown()
     assert pushed and result.status is TaskStatus.SUCCEEDED and result.verified, result.detail
-    events = [e for _, e in read_recording(rec.path).topic("/events") if e["kind"] == "violation"]
+    R = read_recording(rec.path)
+    events = [e for _, e in R.topic("/events") if e["kind"] == "violation"]
     assert result.replans == 1 and len(events) == 1, events
     assert events[0]["monitor"] == "object_moved" and events[0]["detail"].startswith("cup (standing) moved 60 mm")
+    if when == "holding":
+        assert [m["actions"] for _, m in R.topic("/plan")][1] == ["(place block tray)"]
 
 
 def test_sense_plan_act_reaches_the_goal_and_the_recording_replays(sim_exec):

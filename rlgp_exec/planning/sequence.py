@@ -307,6 +307,14 @@ class SequenceGeometry:
         q_prev, held = self.q0, start.held
         T_tool_obj = None if held is None else start.T_tool_obj
         openings = {c: start.opening(c) for c in self.drawers}
+        if held is not None:  # a replan with an object in the hand (a violation right after its grasp): leave
+            # vertically first, as after a pick; resting on its support, the held object has no guided path
+            # out of there ("start_unreachable"). Where there is no room above, the guided path starts here
+            self.checker.set_objects([object_box(o) for o in self.scene.objects if o.name != held])
+            up0 = self.moves.above(self.q0)
+            if up0 is not None:
+                phases.append(Phase(np.vstack([self.q0[None], np.array(up0)]), held))
+                q_prev = up0[-1]
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
             if a.name in ("open_drawer", "close_drawer"):  # the hand on the knob drives the drawer
                 phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True))
