@@ -222,6 +222,7 @@ def test_a_grasped_object_keeps_its_pose_in_the_hand_while_the_arm_moves(robot):
     every held block slide that far down the fingers (carried 6.6 cm below the planned grasp)."""
     from rlgp_exec.hal.sim_physics import SimRobot
     from rlgp_exec.hal.types import GripperCommand, JointSetpoint
+    from rlgp_exec.robot.pybullet_body import quat_xyzw
 
     sim = SimRobot(robot)
     try:
@@ -234,11 +235,9 @@ def test_a_grasped_object_keeps_its_pose_in_the_hand_while_the_arm_moves(robot):
         R = T_tool[:3, :3] @ np.column_stack([approach, closing, third])  # block x y z: approach, closing, third
         centre = T_tool[:3, 3] + T_tool[:3, :3] @ (0.025 * approach)  # 2.5 cm into the hand, as a top grasp
         half = [0.05, 0.025, 0.025]
-        from scipy.spatial.transform import Rotation
-
         block = p.createMultiBody(
             0.1, p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c), -1, centre.tolist(),
-            Rotation.from_matrix(R).as_quat().tolist(), physicsClientId=c,
+            quat_xyzw(R), physicsClientId=c,
         )
         sim.objects["block"] = block
         T_grasp = np.linalg.inv(T_tool) @ sim.object_pose("block")  # where the fingers close on it
