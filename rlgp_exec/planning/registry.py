@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.blas import single_blas_thread
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.scene import Scene
@@ -53,8 +54,10 @@ def planner_names() -> list[str]:
 
 
 def plan(scene: Scene, planner: str = "rlgp", seed: int = 0, memory: PlannerMemory | None = None) -> Plan:
-    """Plan ``scene``'s goal with ``planner``; raises RlgpError naming the valid planners if unknown."""
+    """Plan ``scene``'s goal with ``planner``; raises RlgpError naming the valid planners if unknown.
+    Every BLAS copy runs one thread while it plans (``planning.blas``)."""
     _load_plugins()
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
+    single_blas_thread()
     return PLANNERS[planner](scene, seed, memory)
