@@ -164,6 +164,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"{scene.name}: {result.status.value}: {result.detail}")
     if result.actions:
         print("  plan: " + " ".join(result.actions))
+    if result.executed != result.actions:  # a replan, or a task that stopped part-way
+        print("  executed: " + (" ".join(result.executed) or "nothing"))
     print(
         f"  planning {result.planning_time_s:.2f} s ({result.plans} plan(s), {result.replans} replan(s)); "
         f"execution {result.execution_time_s:.1f} s; base travelled {result.base_distance_m:.2f} m"

@@ -179,7 +179,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         if not result.ok:
             raise RlgpError(f"{result.status.value}: {result.detail}")
         return (
-            f"{' '.join(result.actions)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
+            f"{' '.join(result.executed)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
             f"{result.replans} replan(s)), first motion after {result.time_to_first_motion_s:.1f} s, execution "
             f"{result.execution_time_s:.1f} s, base travelled {result.base_distance_m:.1f} m; {result.detail}"
         )

@@ -123,3 +123,13 @@ def test_table_clearing_plan_is_valid_under_replay(scene):
     names = [a.split()[0].lstrip("(") for a in plan.actions]
     assert names[:2] == ["take_knob", "open_drawer"] and names[-2:] == ["take_knob", "close_drawer"]
     assert sorted(names[2:-2]) == ["drop", "drop", "pick", "pick"]
+    # each action is completed by one phase, in order, whose end is what the action does (the executive's
+    # record of what was carried out): the grasp, the release, the drawer driven, the hand on the knob
+    done = [(k, ph) for k, ph in enumerate(plan.phases) if ph.action is not None]
+    assert [ph.action for _, ph in done] == list(range(len(plan.actions)))
+    for _, ph in done:
+        name, obj = plan.actions[ph.action].strip("()").split()[:2]
+        drives = ph.drives_drawer and ph.knob == obj
+        expect = {"pick": ph.grasp == obj, "drop": ph.release == obj and ph.fall,
+                  "take_knob": ph.knob == obj and not ph.drives_drawer, "open_drawer": drives, "close_drawer": drives}
+        assert expect[name], (plan.actions[ph.action], ph)

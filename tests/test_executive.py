@@ -201,6 +201,8 @@ def test_a_standing_object_pushed_mid_plan_is_seen_and_the_task_planned_again(tm
     assert events[0]["monitor"] == "object_moved" and events[0]["detail"].startswith("cup (standing) moved 60 mm")
     if when == "holding":
         assert [m["actions"] for _, m in R.topic("/plan")][1] == ["(place block tray)"]
+    # what was carried out over both plans: the first plan's pick, the second plan's place
+    assert result.executed == ("(pick block)", "(place block tray)"), result.executed
 
 
 def test_sense_plan_act_reaches_the_goal_and_the_recording_replays(sim_exec):
@@ -208,6 +210,7 @@ def test_sense_plan_act_reaches_the_goal_and_the_recording_replays(sim_exec):
     result = ex.run()
     assert result.status is TaskStatus.SUCCEEDED, result.detail
     assert result.verified and result.actions == ("(pick block)", "(place block tray)")
+    assert result.executed == result.actions
     assert ex.sm.state is ExecState.IDLE
     # the goal holds in the physics, not just in the executive's opinion
     T = hal.sim.object_pose("block")
@@ -288,11 +291,12 @@ def test_a_task_cancelled_mid_carry_is_finished_from_the_hand(sim_exec):
     _cancel_during_phase(ex, hal, phase=2, after=60)  # 0.6 s into the carry (after the pick and its lift)
     first = ex.run()
     assert first.status is TaskStatus.CANCELLED and ex.held == "block", first.detail
+    assert first.executed == ("(pick block)",)  # the place was under way, not done
     assert hal.sim.object_pose("block")[2, 3] > 0.49 + 0.03 and ex.sm.state is ExecState.IDLE  # lifted, at rest
     ex.actor.on_phase = None
     second = ex.run()
     assert second.status is TaskStatus.SUCCEEDED and second.verified, second.detail
-    assert second.actions == ("(place block tray)",) and ex.held is None
+    assert second.actions == second.executed == ("(place block tray)",) and ex.held is None
     T, tray = hal.sim.object_pose("block"), ex.scene.regions[0]
     assert abs(T[1, 3] - tray.offset[1]) < tray.size[1] / 2 and abs(T[0, 3] - 0.75) < tray.size[0] / 2
     rec.close()

@@ -192,6 +192,12 @@ def test_small_tower_plan_is_validated():
     assert plan.success and plan.validation is not None
     assert plan.validation.collision_free and plan.validation.goal_met
     assert len(plan.actions) >= 4 and plan.counters["nlp"] >= 1
+    # each action is completed by one phase, in order, with its gripper event (the executive's record)
+    done = [ph for ph in plan.phases if ph.action is not None]
+    assert [ph.action for ph in done] == list(range(len(plan.actions)))
+    for ph in done:
+        name, _, obj = plan.actions[ph.action].strip("()").split()[:3]
+        assert (ph.grasp == obj) if name == "pick" else (ph.release == obj), (plan.actions[ph.action], ph)
 
 
 def test_logic_planners_agree_on_the_compiled_task(b4_setup):

@@ -57,7 +57,7 @@ class TaskResult:
     status: TaskStatus
     detail: str
     goal: tuple[str, ...]
-    actions: tuple[str, ...] = ()
+    actions: tuple[str, ...] = ()  # the last plan's
     plans: int = 0
     replans: int = 0
     planning_time_s: float = 0.0
@@ -65,6 +65,9 @@ class TaskResult:
     time_to_first_motion_s: float | None = None
     base_distance_m: float = 0.0
     verified: bool = False  # the goal was checked against sensed object poses
+    #: the actions carried out, over every plan in order (a replan's too): an action counts once the phase that
+    #: ends at its keyframe has run, with its gripper event
+    executed: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -83,6 +86,7 @@ class TaskResult:
             "time_to_first_motion_s": self.time_to_first_motion_s,
             "base_distance_m": self.base_distance_m,
             "verified": self.verified,
+            "executed": list(self.executed),
         }
 
 
@@ -274,6 +278,7 @@ class Executive:
             tuple(goal_literals) if goal_literals is not None else tuple(str(x) for x in self.scene.goal.literals)
         )
         actions: tuple[str, ...] = ()
+        executed: list[str] = []
 
         def result(status: TaskStatus, detail: str, verified: bool = False) -> TaskResult:
             r = TaskResult(
@@ -288,6 +293,7 @@ class Executive:
                 first_motion[0] if first_motion else None,
                 self.actor.base_distance_m - d0,
                 verified,
+                tuple(executed),
             )
             self._event("result", **r.as_dict())
             log.info("task %s: %s", status.value, detail)
@@ -358,6 +364,7 @@ class Executive:
                 out = self._act(plan, trajectories, scene)
                 stats["execution_time_s"] += out[1]
                 outcome = out[0]
+                executed += _carried_out(plan, outcome.phases_done)
                 self._hand_after(plan, outcome, scene)
                 if outcome.status is ActStatus.ESTOPPED:
                     self._latch_estop("e-stop during motion")
@@ -462,6 +469,11 @@ class Executive:
                 log.warning("deactivate during fault: %s", e)
         if self.sm.state is not S.FAULT:
             self.sm.to(S.FAULT, why)
+
+
+def _carried_out(plan: Plan, phases_done: int) -> list[str]:
+    """The actions of ``plan`` whose phases up to their keyframes are among the first ``phases_done``."""
+    return [plan.actions[ph.action] for ph in plan.phases[:phases_done] if ph.action is not None]
 
 
 def _plan_failure(reason: str) -> TaskStatus:

@@ -317,7 +317,7 @@ class SequenceGeometry:
                 q_prev = up0[-1]
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
             if a.name in ("open_drawer", "close_drawer"):  # the hand on the knob drives the drawer
-                phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True))
+                phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True, action=k))
                 openings = dict(kf.openings[k])
                 q_leave = self._along_axis(q_k, a.obj, APPROACH)  # let go, back off along the axis
                 phases.append(Phase(np.array([q_k, q_leave]), None, knob=a.obj))
@@ -346,15 +346,15 @@ class SequenceGeometry:
             guides.append(_Guide(len(phases), guided, dict(openings), standing, held, T_tool_obj))
             down = np.vstack([guided, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
             if a.name == "take_knob":
-                phases.append(Phase(down, None, knob=a.obj))
+                phases.append(Phase(down, None, knob=a.obj, action=k))
                 q_prev = q_k
                 continue
             if a.name == "pick":
-                phases.append(Phase(down, None, grasp=a.obj))
+                phases.append(Phase(down, None, grasp=a.obj, action=k))
                 held = a.obj
                 T_tool_obj = np.linalg.inv(self.model.fk(q_k, self.tool)) @ kf.object_poses[k][a.obj]
             else:
-                phases.append(Phase(down, held, release=a.obj, fall=a.name == "drop"))
+                phases.append(Phase(down, held, release=a.obj, fall=a.name == "drop", action=k))
                 held, T_tool_obj = None, None
             phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically
             q_prev = q_pre

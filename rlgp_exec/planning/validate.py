@@ -49,6 +49,9 @@ class Phase:
     fall: bool = False  # the released object falls onto whatever is below it (a drop into a drawer)
     arm: str | None = None  # the manipulator of held / grasp / release (None: the robot's first)
     carried: tuple[tuple[str, str], ...] = ()  # (manipulator, object) held by the other arms meanwhile
+    #: the plan's action (index into ``Plan.actions``) this phase completes: its last configuration is that
+    #: action's keyframe, and its gripper event (if any) that action's. None: a phase between actions
+    action: int | None = None
 
 
 @dataclass(frozen=True)

@@ -194,7 +194,7 @@ def phases_of(
                     return f"no collision-free drive for {a} to base {np.round(values[v][:3], 3).tolist()}"
                 path += list(drive[1:])
                 cur[m] = drive[-1][lib.arm_index(m)]
-            phases.append(Phase(np.array(path), obj, arm=m, carried=carried))
+            phases.append(Phase(np.array(path), obj, arm=m, carried=carried, action=k))
             keyframes.append(full())
             continue
         obj = a.args[1]
@@ -213,10 +213,10 @@ def phases_of(
         keyframes.append(full())
         low[m] = True
         if a.name == "pick":
-            phases.append(Phase(np.array(path), None, grasp=obj, arm=m, carried=carried))
+            phases.append(Phase(np.array(path), None, grasp=obj, arm=m, carried=carried, action=k))
             holding[m] = obj
         else:
-            phases.append(Phase(np.array(path), obj, release=obj, arm=m, carried=carried))
+            phases.append(Phase(np.array(path), obj, release=obj, arm=m, carried=carried, action=k))
             holding.pop(m, None)
     path = [full()]
     why = lift_low(path, None, "the last action", len(actions))
