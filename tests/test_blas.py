@@ -8,17 +8,14 @@ from pathlib import Path
 import casadi as ca
 import cv2  # noqa: F401  (its OpenBLAS copy loaded, as in the executive)
 import numpy as np
-import pytest
 import scipy.linalg  # noqa: F401
 
 from rlgp_exec.planning.blas import CASADI_OPENBLAS, blas_threads, single_blas_thread
 
 
 def _mapped(stem: str) -> set[str]:
-    maps = Path("/proc/self/maps")
-    if not maps.exists():
-        pytest.skip("needs /proc/self/maps (Linux)")
-    return {line.split()[-1] for line in maps.read_text().splitlines() if stem in line}
+    """The files mapped into this process whose path contains ``stem`` (Linux, as the project)."""
+    return {line.split()[-1] for line in Path("/proc/self/maps").read_text().splitlines() if stem in line}
 
 
 def test_every_blas_copy_runs_one_thread_and_ipopt_uses_the_copy_that_was_set() -> None:
