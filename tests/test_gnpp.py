@@ -4,6 +4,9 @@ infeasibility, and a validated two-arm plan."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,13 +19,14 @@ from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import Relaxation, components, relax, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
-from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.gnpp.solver import FEAS_TOL, GraphSolver, SolverRun, ipopt_options
 from rlgp_exec.planning.symbolic import GroundAction, ground_scene, reformulate
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.literals import parse_literal
 
-SCENES = Path(__file__).resolve().parents[1] / "sim" / "scenes"
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "sim" / "scenes"
 
 
 def _tower(keep: list[str], goal: list[str]):
@@ -558,3 +562,55 @@ def test_fixed_base_ik_gives_the_same_answers_with_the_infeasibility_heuristics(
     assert {ok for ok, _ in fast} == {True, False}  # both kinds asked
     for (_, q1), (_, q2) in zip(fast, plain, strict=True):
         np.testing.assert_allclose(q1, q2, atol=1e-9)
+
+
+def _verdict(run: SolverRun, x: np.ndarray) -> bool:
+    a = run.inputs
+    g = np.asarray(run.solver.oracle()(x, a["p"])[1]).reshape(-1)
+    over = np.r_[a["lbg"] - g, g - a["ubg"], a["lbx"] - x, x - a["ubx"], 0.0]
+    return bool(np.all(np.isfinite(x))) and float(over.max()) <= FEAS_TOL and run.fixed_violation <= FEAS_TOL
+
+
+def test_every_recorded_run_solves_again_to_the_same_verdict(b4_setup):
+    """A conflict search (b4 out of the right arm's reach: feasible and infeasible subgraphs, with and
+    without arms): each run re-solved from its NLP alone (the nlpsol's oracle, the planner's IPOPT options,
+    the recorded arguments) takes the same IPOPT iterations to the same point, and the verdict from that
+    point by the record's rule (rows and bounds, and the factors presolve took out) is the planner's."""
+    import casadi as ca
+
+    _, lib, _, graph, guess = b4_setup
+    runs: list[SolverRun] = []
+    solver = GraphSolver(lib)
+    solver.observer = runs.append
+    conflict, _ = find_conflict(Checker(solver, guess), graph, ExtractOptions())
+    assert conflict is not None
+    assert len(runs) == len(solver.iters) >= 5
+    assert {r.feasible for r in runs} == {True, False} and {r.search for r in runs} == {True, False}
+    for run in runs:
+        again = ca.nlpsol("again", "ipopt", run.solver.oracle(), ipopt_options(run.n_factors, run.search))
+        x = np.asarray(again(**run.inputs)["x"]).reshape(-1)
+        assert int(again.stats()["iter_count"]) == run.iterations
+        assert _verdict(run, x) == run.feasible, run.n_factors
+
+
+def test_the_corpus_tool_records_a_plan_and_its_ipopt_control_agrees(tmp_path):
+    """``tools/16_gnpp_nlp_corpus.py record`` then ``compare --solver ipopt``: every run re-solved from the
+    files agrees with its recorded verdict (the control row of the solver study)."""
+    tool = ROOT / "tools" / "16_gnpp_nlp_corpus.py"
+    out = tmp_path / "corpus"
+    rec = subprocess.run(
+        [sys.executable, str(tool), "record", str(SCENES / "tower_pr2.toml"), "--out", str(out)],
+        capture_output=True, text=True, timeout=600, check=False,
+    )
+    assert rec.returncode == 0, rec.stderr[-2000:]
+    meta = json.loads((out / "runs.json").read_text())
+    assert meta["status"] == "solved" and len(meta["runs"]) > 50
+    with np.load(out / "runs.npz", allow_pickle=False) as data:
+        assert len(data.files) == 6 * len(meta["runs"])
+    cmp = subprocess.run(
+        [sys.executable, str(tool), "compare", str(out), "--solver", "ipopt"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )
+    assert cmp.returncode == 0, cmp.stderr[-2000:]
+    row = next(line.split() for line in cmp.stdout.splitlines() if line.startswith("ipopt "))
+    assert row[1:5] == [str(len(meta["runs"])), "0", "0", "0"], cmp.stdout  # agree, feas->inf, inf->feas, errors

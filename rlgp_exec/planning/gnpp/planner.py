@@ -18,6 +18,7 @@ import dataclasses
 import enum
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -39,7 +40,7 @@ from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
-from rlgp_exec.planning.gnpp.solver import GraphSolver
+from rlgp_exec.planning.gnpp.solver import GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
@@ -124,12 +125,14 @@ def plan_gnpp(
     max_iterations: int = 300,
     memory: PlannerMemory | None = None,
     trajectories: bool = True,
+    on_nlp: Callable[[SolverRun], None] | None = None,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
     is CPU time (``cpu_clock``: this process and Fast Downward), the paper's measure: the same
     budget on a loaded machine takes longer, not fewer NLPs. ``trajectories``: each arm's moves of a
-    solved plan optimised as 20 waypoints (``gnpp.trajectory``), else its straight motions."""
+    solved plan optimised as 20 waypoints (``gnpp.trajectory``), else its straight motions. ``on_nlp``:
+    called after every graph-NLP run of IPOPT (``GraphSolver.observer``)."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     opts = VARIANTS[variant]
@@ -137,6 +140,7 @@ def plan_gnpp(
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
+    solver.observer = on_nlp
     traj = Trajectories(lib) if trajectories else None
     if lib.mobile:
         solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)

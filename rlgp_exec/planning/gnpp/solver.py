@@ -24,7 +24,17 @@ from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["FEAS_TOL", "OBJECT_STARTS", "RESTART_ABOVE", "SEARCH", "Feasibility", "GraphSolver", "SolveResult"]
+__all__ = [
+    "FEAS_TOL",
+    "OBJECT_STARTS",
+    "RESTART_ABOVE",
+    "SEARCH",
+    "Feasibility",
+    "GraphSolver",
+    "SolveResult",
+    "SolverRun",
+    "ipopt_options",
+]
 
 log = logging.getLogger(__name__)
 FEAS_TOL = 1e-4  # [m or rad] a factor is satisfied when no row is off its bounds by more
@@ -80,6 +90,11 @@ RESTART_ABOVE = 60
 OBJECT_STARTS = 2
 
 
+def ipopt_options(n_factors: int, search: bool) -> dict:
+    """The IPOPT options of a graph-NLP of ``n_factors`` factors (``search``: with ``SEARCH``)."""
+    return {**IPOPT, **(SEARCH if search else {}), **_limits(n_factors)}
+
+
 def _limits(n_factors: int) -> dict:
     """IPOPT's iteration and CPU-time limits for an NLP of ``n_factors`` factors: a verdict "infeasible"
     is the solver running into them, so they must not cut feasible solves short. Measured (tower,
@@ -107,9 +122,29 @@ class SolveResult:
         return self.feasibility is Feasibility.FEASIBLE
 
 
+@dataclass(frozen=True)
+class SolverRun:
+    """One IPOPT run inside ``GraphSolver.solve``, for ``GraphSolver.observer`` (``tools/16``
+    records them to re-solve them with other solvers). ``solver.oracle()`` is the NLP (x, p) -> (f, g);
+    ``inputs`` are the run's arguments (x0, p, lbx, ubx, lbg, ubg); ``fixed_violation`` [m or rad] is the
+    largest violation of the factors ``presolve`` took out of the NLP (constants, the same at any point):
+    the run's verdict is "feasible" iff the NLP's rows and bounds hold within ``FEAS_TOL`` at its point
+    and ``fixed_violation`` is within it too."""
+
+    solver: ca.Function
+    inputs: Mapping[str, FloatArray]
+    n_factors: int
+    search: bool  # IPOPT with ``SEARCH``
+    feasible: bool
+    iterations: int
+    cpu_s: float
+    fixed_violation: float
+
+
 @dataclass
 class _Built:
     solver: ca.Function | None  # None: every variable pinned (nothing for IPOPT to do)
+    search: bool  # the solver runs with ``SEARCH``
     g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
     lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
     ubg: FloatArray
@@ -117,6 +152,7 @@ class _Built:
     hi_all: FloatArray
     rows: list[tuple[int, int]]  # per input factor: its row range in ``g_fn``
     pre: Presolved
+    constant: tuple[int, ...]  # the input factors with every variable pinned (their values are constants)
 
 
 class GraphSolver:
@@ -138,6 +174,8 @@ class GraphSolver:
         #: ``graph.structure`` of each subgraph ``refute`` found no feasible point for -> its tries
         self._upheld: dict[tuple, int] = {}
         self.iters: list[int] = []  # IPOPT iterations per solve
+        #: called after every IPOPT run (a diagnostic hook: ``tools/16_gnpp_nlp_corpus.py``)
+        self.observer: Callable[[SolverRun], None] | None = None
 
     def _structure(self, factors: Sequence[Factor], order: list[Var]) -> tuple:
         pos = {v: i for i, v in enumerate(order)}
@@ -171,13 +209,15 @@ class GraphSolver:
         lbg = np.concatenate([lo[k] for k in pre.kept]) if pre.kept else np.zeros(0)
         ubg = np.concatenate([hi[k] for k in pre.kept]) if pre.kept else np.zeros(0)
         solver = None
+        search = not self.thorough and any(v.kind == "q" for v in order)
         if pre.free:
             nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
-            search = not self.thorough and any(v.kind == "q" for v in order)
-            opts = {**IPOPT, **(SEARCH if search else {}), **_limits(len(factors))}
-            solver = ca.nlpsol("graph_nlp", "ipopt", nlp, opts)
+            solver = ca.nlpsol("graph_nlp", "ipopt", nlp, ipopt_options(len(factors), search))
         g_fn = ca.Function("g", [x], [g_all])
-        return _Built(solver, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
+        pos = {v: i for i, v in enumerate(order)}
+        constant = tuple(k for k, f in enumerate(factors) if all(pre.rep[pos[v]] in pre.const for v in f.vars))
+        lo_all, hi_all = np.concatenate(lo), np.concatenate(hi)
+        return _Built(solver, search, g_fn, lbg, ubg, lo_all, hi_all, rows, pre, constant)
 
     def refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = REFUTE_TRIES, seed: int = 0
@@ -274,14 +314,23 @@ class GraphSolver:
             x0 = np.clip(x0, lbx, ubx)
             xs = x0
             if built.solver is not None:
+                c0 = time.process_time()
                 res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+                cpu = time.process_time() - c0
                 self.iters.append(int(built.solver.stats()["iter_count"]))
                 xs = np.asarray(res["x"]).reshape(-1)
             g = np.asarray(built.g_fn(xs)).reshape(-1)
             over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
             over[~np.isfinite(g)] = np.inf
             viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
-            if bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL:
+            feasible = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
+            if self.observer is not None and built.solver is not None:
+                inputs = {"x0": x0, "p": x0, "lbx": lbx, "ubx": ubx, "lbg": built.lbg, "ubg": built.ubg}
+                fixed = max((viol[k] for k in built.constant), default=0.0)
+                self.observer(
+                    SolverRun(built.solver, inputs, len(factors), built.search, feasible, self.iters[-1], cpu, fixed)
+                )
+            if feasible:
                 break
         offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
         values = {}
