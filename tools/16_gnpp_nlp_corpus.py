@@ -2,6 +2,7 @@
 
     .venv/bin/python tools/16_gnpp_nlp_corpus.py record [SCENE] [--seed K] [--variant gnpp_trn] --out DIR
     .venv/bin/python tools/16_gnpp_nlp_corpus.py compare DIR [--solver ipopt] [--solver sqpmethod:daqp] ...
+                                                      [--set ipopt.OPTION=VALUE ...]
 
 ``record`` plans SCENE (default tower_pr2) with GNPP and keeps what its graph-NLP solver ran
 (``GraphSolver.observer``): each distinct NLP once, as CasADi's own serialisation of its oracle
@@ -13,7 +14,8 @@ iterations, CPU).
 verdicts agree, how many differ (both ways), CPU (on the runs IPOPT found feasible / infeasible) and
 iterations. A verdict is the planner's: every row and bound within ``FEAS_TOL`` at the solver's point,
 and the factors ``presolve`` took out as constants within it too. ``ipopt`` re-solves with the
-planner's options (the control: it agrees with the record); ``sqpmethod:QP`` is CasADi's SQP with that
+planner's options (the control: it agrees with the record), ``--set`` changing some of them (e.g.
+``--set ipopt.max_soc=0``: does an option keep every verdict, at what CPU?); ``sqpmethod:QP`` is CasADi's SQP with that
 QP solver (``daqp``, ``qpoases``, ``osqp``, ...), stopped at the first feasible iterate as IPOPT is.
 Stop 27's measurements (seed 0 of each scene; CPU of the re-solves, against the recorded IPOPT runs):
 
@@ -28,7 +30,13 @@ Stop 27's measurements (seed 0 of each scene; CPU of the re-solves, against the 
 
 None called an infeasible run feasible. DAQP's false "infeasible" runs end 10^3-10^9 off their rows and
 outside the variable bounds (a failed QP's step taken), as do most of its true ones: an SQP on these
-NLPs needs a safeguarded step before its verdicts can replace IPOPT's (the planner kept IPOPT).
+NLPs needs a safeguarded step before its verdicts can replace IPOPT's (the planner kept IPOPT). Without
+elastic mode and with its QP failures raised, the SQP raised on 25, 88 and 87 runs: about every run IPOPT
+finds infeasible, the expensive kind (60-70 % of IPOPT's CPU here), so IPOPT would still answer those.
+IPOPT options tried with ``--set`` (max_resto_iter=20, mu_init=0.01, mu_strategy=adaptive,
+nlp_scaling_method=none, limited_memory_initialization=constant, bound_push=0.001, max_soc=0) left the
+iterations within -8 %..+29 % and CPU within the re-solves' noise (about +-15 %); max_resto_iter=20 lost a
+feasible verdict on Hanoi.
 """
 
 from __future__ import annotations
@@ -106,10 +114,10 @@ def record(scene_path: str, seed: int, variant: str, out: Path) -> int:
     return 0
 
 
-def _solver(spec: str, oracle: ca.Function, run: dict) -> ca.Function:
+def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Function:
     plugin, _, qp = spec.partition(":")
     if plugin == "ipopt":
-        return ca.nlpsol("replay", "ipopt", oracle, ipopt_options(run["factors"], run["search"]))
+        return ca.nlpsol("replay", "ipopt", oracle, {**ipopt_options(run["factors"], run["search"]), **changes})
     if plugin == "sqpmethod":
         opts = {**SQP, "qpsol": qp or "qrqp", "max_iter": ipopt_options(run["factors"], False)["ipopt.max_iter"]}
         opts["qpsol_options"] = {"error_on_fail": False, "print_time": False, **QUIET_QP.get(opts["qpsol"], {})}
@@ -125,7 +133,21 @@ def _verdict(oracle: ca.Function, x: np.ndarray, a: dict[str, np.ndarray], fixed
     return bool(np.all(np.isfinite(g))) and float(over.max()) <= FEAS_TOL and fixed <= FEAS_TOL
 
 
-def compare(corpus: Path, specs: list[str]) -> int:
+def _changes(settings: list[str]) -> dict:
+    """``--set KEY=VALUE`` arguments as IPOPT options (a VALUE that parses as JSON is that value)."""
+    out = {}
+    for item in settings:
+        key, sep, text = item.partition("=")
+        if not sep or not key.startswith("ipopt."):
+            raise SystemExit(f"--set {item!r}: expected ipopt.OPTION=VALUE, e.g. ipopt.max_soc=0")
+        try:
+            out[key] = json.loads(text)
+        except json.JSONDecodeError:
+            out[key] = text
+    return out
+
+
+def compare(corpus: Path, specs: list[str], changes: dict) -> int:
     meta = json.loads((corpus / "runs.json").read_text())
     data = np.load(corpus / "runs.npz", allow_pickle=False)
     runs = meta["runs"]
@@ -149,7 +171,7 @@ def compare(corpus: Path, specs: list[str]) -> int:
             key = r["nlp"] if not spec.startswith("ipopt") else (r["nlp"], r["search"], r["factors"])
             s = built.get(key)  # type: ignore[arg-type]
             if s is None:
-                s = built[key] = _solver(spec, oracles[r["nlp"]], r)  # type: ignore[index]
+                s = built[key] = _solver(spec, oracles[r["nlp"]], r, changes)  # type: ignore[index]
             c0 = time.process_time()
             try:
                 x = np.asarray(s(**a)["x"]).reshape(-1)
@@ -178,10 +200,11 @@ def main() -> int:
     c = sub.add_parser("compare", help="re-solve a recorded corpus with other solvers")
     c.add_argument("corpus", type=Path)
     c.add_argument("--solver", action="append", default=None, help="ipopt | sqpmethod:QP (repeatable)")
+    c.add_argument("--set", action="append", default=[], help="ipopt.OPTION=VALUE for --solver ipopt (repeatable)")
     args = ap.parse_args()
     if args.cmd == "record":
         return record(args.scene, args.seed, args.variant, args.out)
-    return compare(args.corpus, args.solver or ["ipopt", "sqpmethod:daqp"])
+    return compare(args.corpus, args.solver or ["ipopt", "sqpmethod:daqp"], _changes(args.set))
 
 
 if __name__ == "__main__":
