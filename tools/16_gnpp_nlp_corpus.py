@@ -35,8 +35,12 @@ elastic mode and with its QP failures raised, the SQP raised on 25, 88 and 87 ru
 finds infeasible, the expensive kind (60-70 % of IPOPT's CPU here), so IPOPT would still answer those.
 IPOPT options tried with ``--set`` (max_resto_iter=20, mu_init=0.01, mu_strategy=adaptive,
 nlp_scaling_method=none, limited_memory_initialization=constant, bound_push=0.001, max_soc=0) left the
-iterations within -8 %..+29 % and CPU within the re-solves' noise (about +-15 %); max_resto_iter=20 lost a
-feasible verdict on Hanoi.
+iterations within -9 %..+29 % and CPU within the re-solves' noise (about +-15 %); max_resto_iter=20 lost a
+feasible verdict on Hanoi. linear_solver=spral: the same verdicts at 1.8-2.6x the CPU. A lower iteration
+cap, min(K + factors, 400) for the planner's K = 60, over 15 corpora (seeds 0-4 of the three scenes):
+K = 30 cut 22-31 % of the iterations but lost a feasible verdict on tower seed 3 and on obstacles seed 3
+(3-factor subgraphs that need 37 iterations); K = 10 lost 3 on obstacles seed 0. The runs that reach the
+cap are infeasible ones, most of them ``refute``'s tries on true conflicts.
 """
 
 from __future__ import annotations
