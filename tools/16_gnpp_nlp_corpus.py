@@ -39,8 +39,8 @@ iterations within -9 %..+29 % and CPU within the re-solves' noise (about +-15 %)
 feasible verdict on Hanoi. linear_solver=spral: the same verdicts at 1.8-2.6x the CPU. A lower iteration
 cap, min(K + factors, 400) for the planner's K = 60, over 15 corpora (seeds 0-4 of the three scenes):
 K = 30 cut 22-31 % of the iterations but lost a feasible verdict on tower seed 3 and on obstacles seed 3
-(3-factor subgraphs that need 37 iterations); K = 10 lost 3 on obstacles seed 0. The runs that reach the
-cap are infeasible ones, most of them ``refute``'s tries on true conflicts.
+(3-factor subgraphs that need 37 iterations); K = 10 lost 3 on obstacles seed 0. Only infeasible runs reach
+the cap, on tower mostly 4-factor subgraphs, the size of its conflicts (``refute``'s tries, QuickXplain).
 """
 
 from __future__ import annotations
