@@ -595,7 +595,8 @@ def test_every_recorded_run_solves_again_to_the_same_verdict(b4_setup):
 
 def test_the_corpus_tool_records_a_plan_and_its_ipopt_control_agrees(tmp_path):
     """``tools/16_gnpp_nlp_corpus.py record`` then ``compare --solver ipopt``: every run re-solved from the
-    files agrees with its recorded verdict (the control row of the solver study)."""
+    files agrees with its recorded verdict (the control row of the solver study); the Levenberg-Marquardt
+    prototype runs on the runs with arm variables."""
     tool = ROOT / "tools" / "16_gnpp_nlp_corpus.py"
     out = tmp_path / "corpus"
     rec = subprocess.run(
@@ -607,10 +608,13 @@ def test_the_corpus_tool_records_a_plan_and_its_ipopt_control_agrees(tmp_path):
     assert meta["status"] == "solved" and len(meta["runs"]) > 50
     with np.load(out / "runs.npz", allow_pickle=False) as data:
         assert len(data.files) == 6 * len(meta["runs"])
+    assert all(isinstance(r["arms"], bool) for r in meta["runs"]) and any(r["arms"] for r in meta["runs"])
     cmp = subprocess.run(
-        [sys.executable, str(tool), "compare", str(out), "--solver", "ipopt"],
+        [sys.executable, str(tool), "compare", str(out), "--solver", "ipopt", "--solver", "lm", "--arms-only"],
         capture_output=True, text=True, timeout=600, check=False,
     )
     assert cmp.returncode == 0, cmp.stderr[-2000:]
     row = next(line.split() for line in cmp.stdout.splitlines() if line.startswith("ipopt "))
     assert row[1:5] == [str(len(meta["runs"])), "0", "0", "0"], cmp.stdout  # agree, feas->inf, inf->feas, errors
+    lm = next(line.split() for line in cmp.stdout.splitlines() if line.startswith("lm "))
+    assert lm[4] == "0" and int(lm[1]) + int(lm[2]) + int(lm[3]) == len(meta["runs"]), cmp.stdout  # the prototype ran

@@ -136,6 +136,7 @@ class SolverRun:
     solver: ca.Function
     inputs: Mapping[str, FloatArray]
     n_factors: int
+    arms: bool  # the NLP has arm variables
     search: bool  # IPOPT with ``SEARCH``
     feasible: bool
     iterations: int
@@ -329,9 +330,9 @@ class GraphSolver:
             if self.observer is not None and built.solver is not None:
                 inputs = {"x0": x0, "p": x0, "lbx": lbx, "ubx": ubx, "lbg": built.lbg, "ubg": built.ubg}
                 fixed = max((viol[k] for k in built.constant), default=0.0)
-                self.observer(
-                    SolverRun(built.solver, inputs, len(factors), built.search, feasible, self.iters[-1], cpu, fixed)
-                )
+                arms = any(v.kind == "q" for v in free)
+                n, it = len(factors), self.iters[-1]
+                self.observer(SolverRun(built.solver, inputs, n, arms, built.search, feasible, it, cpu, fixed))
             if feasible:
                 break
         offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
