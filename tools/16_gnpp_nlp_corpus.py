@@ -50,8 +50,14 @@ variables of up to 60 factors, IPOPT's recorded runs for the rest) agreed with e
 of the three scenes, at 0.47-0.52 of IPOPT's CPU on tower, 0.68-0.76 on obstacles, 0.84-1.01 on Hanoi (its
 infeasible runs at 0.4 of IPOPT's on tower). Without ``--arms-only`` it called up to 4 object-only runs
 (4-8 variables, ColOO rows) infeasible per corpus; on every NLP (no ``--max-factors``) the large ones made it
-slower than IPOPT (tower 2.7 against 1.2 s). Its points stay on the bounds they reach, which in the planner
-would change warm starts and keyframes (with DAQP's SQP such points failed replays): not tried in the planner.
+slower than IPOPT (tower 2.7 against 1.2 s). Tried in the planner (not landed; arm NLPs of up to 60
+factors), interleaved with IPOPT alone, 5 seeds x 2 rounds:
+- as it is, and for ``refute`` too: tower seed 2 learnt a third conflict and failed a replay (its points on
+  their bounds: the upper arm on the table on the way to the first keyframe);
+- with ``refute`` left to IPOPT and inequality rows aimed 1 cm inside their bounds: tower 3.27 / 4.03 s
+  against 3.66 / 5.02 s, the same 2 conflicts on every seed;
+- but obstacles went to 8.17 / 8.37 s against 6.16 / 7.67 s (seed 3: 2 plans blocked), and Hanoi to 0 of 5
+  solved (100 s budget: its "infeasible" answers refuted by IPOPT again and again, every plan blocked).
 """
 
 from __future__ import annotations
