@@ -150,7 +150,7 @@ def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Func
 
 class _LevenbergMarquardt:
     """A prototype verdict solver (``--solver lm``): Levenberg-Marquardt on the rows' violation
-    r = g - clip(g, lbg, ubg) (the rows on their bounds drop out), steps projected onto the variable box.
+    r = g - clip(g, lbg, ubg) (the rows within their bounds drop out), steps projected onto the variable box.
     "Feasible" once every row is within 1e-6; it gives up when r.r falls by under 0.1 % for 5 steps after
     at least 15, or when no damping finds a decrease. The objective is ignored; the point is not moved
     off the bounds it reaches (an interior-point solver's points keep off them)."""
