@@ -19,7 +19,7 @@ from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import Relaxation, components, relax, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
-from rlgp_exec.planning.gnpp.solver import FEAS_TOL, GraphSolver, SolverRun, ipopt_options
+from rlgp_exec.planning.gnpp.solver import GraphSolver, SolverRun, ipopt_options, run_feasible
 from rlgp_exec.planning.symbolic import GroundAction, ground_scene, reformulate
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
@@ -564,13 +564,6 @@ def test_fixed_base_ik_gives_the_same_answers_with_the_infeasibility_heuristics(
         np.testing.assert_allclose(q1, q2, atol=1e-9)
 
 
-def _verdict(run: SolverRun, x: np.ndarray) -> bool:
-    a = run.inputs
-    g = np.asarray(run.solver.oracle()(x, a["p"])[1]).reshape(-1)
-    over = np.r_[a["lbg"] - g, g - a["ubg"], a["lbx"] - x, x - a["ubx"], 0.0]
-    return bool(np.all(np.isfinite(x))) and float(over.max()) <= FEAS_TOL and run.fixed_violation <= FEAS_TOL
-
-
 def test_every_recorded_run_solves_again_to_the_same_verdict(b4_setup):
     """A conflict search (b4 out of the right arm's reach: feasible and infeasible subgraphs, with and
     without arms): each run re-solved from its NLP alone (the nlpsol's oracle, the planner's IPOPT options,
@@ -590,7 +583,7 @@ def test_every_recorded_run_solves_again_to_the_same_verdict(b4_setup):
         again = ca.nlpsol("again", "ipopt", run.solver.oracle(), ipopt_options(run.n_factors, run.search))
         x = np.asarray(again(**run.inputs)["x"]).reshape(-1)
         assert int(again.stats()["iter_count"]) == run.iterations
-        assert _verdict(run, x) == run.feasible, run.n_factors
+        assert run_feasible(run.solver.oracle(), x, run.inputs, run.fixed_violation) == run.feasible, run.n_factors
 
 
 def test_the_corpus_tool_records_a_plan_and_its_ipopt_control_agrees(tmp_path):

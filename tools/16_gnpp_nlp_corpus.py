@@ -75,7 +75,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rlgp_exec.planning.gnpp import VARIANTS, plan_gnpp  # noqa: E402
-from rlgp_exec.planning.gnpp.solver import FEAS_TOL, SolverRun, ipopt_options  # noqa: E402
+from rlgp_exec.planning.gnpp.solver import SolverRun, ipopt_options, run_feasible  # noqa: E402
 from rlgp_exec.scene import load_scene, randomize  # noqa: E402
 
 INPUTS = ("x0", "p", "lbx", "ubx", "lbg", "ubg")
@@ -198,14 +198,6 @@ class _LevenbergMarquardt:
         return {"iter_count": self.iterations}
 
 
-def _verdict(oracle: ca.Function, x: np.ndarray, a: dict[str, np.ndarray], fixed: float) -> bool:
-    if not np.all(np.isfinite(x)):
-        return False
-    g = np.asarray(oracle(x, a["p"])[1]).reshape(-1)
-    over = np.r_[a["lbg"] - g, g - a["ubg"], a["lbx"] - x, x - a["ubx"], 0.0]
-    return bool(np.all(np.isfinite(g))) and float(over.max()) <= FEAS_TOL and fixed <= FEAS_TOL
-
-
 def _changes(settings: list[str]) -> dict:
     """``--set KEY=VALUE`` arguments as IPOPT options (a VALUE that parses as JSON is that value)."""
     out = {}
@@ -256,7 +248,7 @@ def compare(corpus: Path, specs: list[str], changes: dict, max_factors: int, arm
             except RuntimeError:  # e.g. sqpmethod's elastic mode giving up: no point, no verdict
                 x, errors = np.full(a["x0"].size, np.nan), errors + 1
             cpu[0 if r["feasible"] else 1] += time.process_time() - c0
-            ok = _verdict(oracles[r["nlp"]], x, a, r["fixed_violation"])
+            ok = run_feasible(oracles[r["nlp"]], x, a, r["fixed_violation"])
             agree += ok == r["feasible"]
             f2i += r["feasible"] and not ok
             i2f += ok and not r["feasible"]

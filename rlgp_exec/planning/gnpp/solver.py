@@ -34,6 +34,7 @@ __all__ = [
     "SolveResult",
     "SolverRun",
     "ipopt_options",
+    "run_feasible",
 ]
 
 log = logging.getLogger(__name__)
@@ -144,6 +145,18 @@ class SolverRun:
     fixed_violation: float
 
 
+def run_feasible(oracle: ca.Function, x: FloatArray, inputs: Mapping[str, FloatArray], fixed_violation: float) -> bool:
+    """A recorded run's verdict at the point ``x``, by ``SolverRun``'s rule: every row of the NLP
+    ``oracle`` (x, p) -> (f, g) and every variable bound within ``FEAS_TOL`` (``inputs``: the run's p, lbg,
+    ubg, lbx, ubx), and the factors ``presolve`` made constants within it too."""
+    x = np.asarray(x, float).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        return False
+    g = np.asarray(oracle(x, inputs["p"])[1]).reshape(-1)
+    over = np.r_[inputs["lbg"] - g, g - inputs["ubg"], inputs["lbx"] - x, x - inputs["ubx"], 0.0]
+    return bool(np.all(np.isfinite(g))) and float(over.max()) <= FEAS_TOL and fixed_violation <= FEAS_TOL
+
+
 @dataclass
 class _Built:
     solver: ca.Function | None  # None: every variable pinned (nothing for IPOPT to do)
@@ -155,7 +168,6 @@ class _Built:
     hi_all: FloatArray
     rows: list[tuple[int, int]]  # per input factor: its row range in ``g_fn``
     pre: Presolved
-    constant: tuple[int, ...]  # the input factors with every variable pinned (their values are constants)
 
 
 class GraphSolver:
@@ -217,10 +229,29 @@ class GraphSolver:
             nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
             solver = ca.nlpsol("graph_nlp", "ipopt", nlp, ipopt_options(len(factors), search))
         g_fn = ca.Function("g", [x], [g_all])
-        pos = {v: i for i, v in enumerate(order)}
-        constant = tuple(k for k, f in enumerate(factors) if all(pre.rep[pos[v]] in pre.const for v in f.vars))
-        lo_all, hi_all = np.concatenate(lo), np.concatenate(hi)
-        return _Built(solver, search, g_fn, lbg, ubg, lo_all, hi_all, rows, pre, constant)
+        return _Built(solver, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
+
+    def _observe(
+        self,
+        built: _Built,
+        factors: Sequence[Factor],
+        order: list[Var],
+        x0: FloatArray,
+        lbx: FloatArray,
+        ubx: FloatArray,
+        viol: tuple[float, ...],
+        feasible: bool,
+        cpu: float,
+    ) -> None:
+        """``observer`` told of the IPOPT run just made (``SolverRun``)."""
+        assert self.observer is not None and built.solver is not None
+        pre, pos = built.pre, {v: i for i, v in enumerate(order)}
+        constant = [k for k, f in enumerate(factors) if all(pre.rep[pos[v]] in pre.const for v in f.vars)]
+        inputs = {"x0": x0, "p": x0, "lbx": lbx, "ubx": ubx, "lbg": built.lbg, "ubg": built.ubg}
+        arms = any(order[i].kind == "q" for i in pre.free)
+        fixed = max((viol[k] for k in constant), default=0.0)
+        run = SolverRun(built.solver, inputs, len(factors), arms, built.search, feasible, self.iters[-1], cpu, fixed)
+        self.observer(run)
 
     def refute(
         self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = REFUTE_TRIES, seed: int = 0
@@ -328,11 +359,7 @@ class GraphSolver:
             viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
             feasible = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
             if self.observer is not None and built.solver is not None:
-                inputs = {"x0": x0, "p": x0, "lbx": lbx, "ubx": ubx, "lbg": built.lbg, "ubg": built.ubg}
-                fixed = max((viol[k] for k in built.constant), default=0.0)
-                arms = any(v.kind == "q" for v in free)
-                n, it = len(factors), self.iters[-1]
-                self.observer(SolverRun(built.solver, inputs, n, arms, built.search, feasible, it, cpu, fixed))
+                self._observe(built, factors, order, x0, lbx, ubx, viol, feasible, cpu)
             if feasible:
                 break
         offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
