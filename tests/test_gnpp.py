@@ -19,7 +19,7 @@ from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import Relaxation, components, relax, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
-from rlgp_exec.planning.gnpp.solver import GraphSolver, SolverRun, ipopt_options, run_feasible
+from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun, ipopt_options, run_feasible
 from rlgp_exec.planning.symbolic import GroundAction, ground_scene, reformulate
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
@@ -56,9 +56,14 @@ def b4_setup(pr2):
     return scene, lib, task, graph, guess
 
 
-def test_extracted_conflict_is_minimal(b4_setup):
+@pytest.mark.parametrize("lm", [False, True])
+def test_extracted_conflict_is_minimal(b4_setup, lm):
+    """Also with the search's verdicts from Levenberg-Marquardt (``lm``): the conflict is checked by IPOPT."""
     _, lib, _, graph, guess = b4_setup
-    check = Checker(GraphSolver(lib), guess)
+    solver = GraphSolver(lib)
+    if lm:
+        solver.lm_max_factors = LM_MAX_FACTORS
+    check = Checker(solver, guess)
     conflict, _ = find_conflict(check, graph, ExtractOptions())
     assert conflict is not None
     kinds = {f.kind for f in conflict.factors}
@@ -611,3 +616,46 @@ def test_the_corpus_tool_records_a_plan_and_its_ipopt_control_agrees(tmp_path):
     assert row[1:5] == [str(len(meta["runs"])), "0", "0", "0"], cmp.stdout  # agree, feas->inf, inf->feas, errors
     lm = next(line.split() for line in cmp.stdout.splitlines() if line.startswith("lm "))
     assert lm[4] == "0" and int(lm[1]) + int(lm[2]) + int(lm[3]) == len(meta["runs"]), cmp.stdout  # the prototype ran
+
+
+def test_levenberg_marquardt_gives_ipopts_verdict_on_the_searchs_arm_nlps(b4_setup):
+    """The verdicts the search takes from ``lm.LevenbergMarquardt`` (arm NLPs of up to ``LM_MAX_FACTORS``
+    factors): on every such run of a conflict search recorded with IPOPT alone (feasible and infeasible
+    subgraphs), LM from the same start reaches the same verdict by the record's rule."""
+    import casadi as ca
+
+    from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
+
+    _, lib, _, graph, guess = b4_setup
+    runs: list[SolverRun] = []
+    solver = GraphSolver(lib)
+    solver.observer = runs.append
+    find_conflict(Checker(solver, guess), graph, ExtractOptions())
+    mine = [r for r in runs if r.arms and r.search and r.n_factors <= LM_MAX_FACTORS]
+    assert {r.feasible for r in mine} == {True, False}
+    for run in mine:
+        oracle = run.solver.oracle()
+        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
+        lm = LevenbergMarquardt(x, p, oracle(x, p)[1], ipopt_options(run.n_factors, True)["ipopt.max_iter"])
+        point = lm(**{k: run.inputs[k] for k in ("x0", "p", "lbx", "ubx", "lbg", "ubg")})["x"]
+        assert run_feasible(oracle, point, run.inputs, run.fixed_violation) == run.feasible, run.n_factors
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_polish_moves_a_point_off_its_clearance_bound_and_keeps_it_feasible(sparse):
+    """x0 + x1 = 1 (an equality), x0 >= 0 (a clearance row) and -1 <= x1 <= 1.002 (a narrow-topped one): from
+    (0, 1), on the clearance bound, ``polish`` ends BACKOFF inside it with the equality kept; where the
+    rows leave no room inside (x0 >= 0 and x0 <= 0) the point stays feasible."""
+    import casadi as ca
+
+    from rlgp_exec.planning.gnpp.lm import BACKOFF, TOL, LevenbergMarquardt
+
+    x, p = ca.MX.sym("x", 2), ca.MX.sym("p", 2)
+    lm = LevenbergMarquardt(x, p, ca.vertcat(x[0] + x[1], x[0], x[1]), 50, sparse=sparse)
+    box = (np.full(2, -5.0), np.full(2, 5.0))
+    lbg, ubg = np.array([1.0, 0.0, -1.0]), np.array([1.0, np.inf, 1.002])
+    moved = lm.polish(np.array([0.0, 1.0]), np.zeros(2), *box, lbg, ubg)
+    assert abs(moved.sum() - 1.0) <= TOL and moved[0] >= BACKOFF - 1e-6 and -1.0 <= moved[1] <= 1.002
+    tight = LevenbergMarquardt(x, p, ca.vertcat(x[0], x[0]), 50, sparse=sparse)
+    kept = tight.polish(np.array([0.0, 0.3]), np.zeros(2), *box, np.array([0.0, -np.inf]), np.array([np.inf, 0.0]))
+    assert abs(kept[0]) <= TOL

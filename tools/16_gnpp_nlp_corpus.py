@@ -5,11 +5,11 @@
                                                       [--set ipopt.OPTION=VALUE ...] [--solver lm]
                                                       [--max-factors N] [--arms-only]
 
-``record`` plans SCENE (default tower_pr2) with GNPP and keeps what its graph-NLP solver ran
-(``GraphSolver.observer``): each distinct NLP once, as CasADi's own serialisation of its oracle
-(x, p) -> (f, g) (``nlp_K.casadi``); each run's arguments in ``runs.npz`` (numpy, read without pickle)
-and its metadata in ``runs.json`` (which NLP, factors, IPOPT with ``SEARCH`` or not, the verdict,
-iterations, CPU).
+``record`` plans SCENE (default tower_pr2) with GNPP, IPOPT answering every NLP (``lm_verdicts=False``),
+and keeps what its graph-NLP solver ran (``GraphSolver.observer``): each distinct NLP once, as CasADi's
+own serialisation of its oracle (x, p) -> (f, g) (``nlp_K.casadi``); each run's arguments in
+``runs.npz`` (numpy, read without pickle) and its metadata in ``runs.json`` (which NLP, factors, IPOPT
+with ``SEARCH`` or not, the verdict, iterations, CPU).
 
 ``compare`` re-solves every run with each solver and prints, beside the recorded IPOPT runs, how many
 verdicts agree, how many differ (both ways), CPU (on the runs IPOPT found feasible / infeasible) and
@@ -18,7 +18,7 @@ and the factors ``presolve`` took out as constants within it too. ``ipopt`` re-s
 planner's options (the control: it agrees with the record), ``--set`` changing some of them (e.g.
 ``--set ipopt.max_soc=0``: does an option keep every verdict, at what CPU?); ``sqpmethod:QP`` is CasADi's SQP with that
 QP solver (``daqp``, ``qpoases``, ``osqp``, ...), stopped at the first feasible iterate as IPOPT is;
-``lm`` a prototype Levenberg-Marquardt on the rows' violation (``_LevenbergMarquardt``). ``--max-factors``
+``lm`` the planner's Levenberg-Marquardt on the rows' violation (``gnpp.lm``, its verdict). ``--max-factors``
 and ``--arms-only`` leave the other runs to IPOPT (its recorded verdict and CPU count): a split policy.
 Stop 27's measurements (seed 0 of each scene; CPU of the re-solves, against the recorded IPOPT runs):
 
@@ -45,19 +45,22 @@ K = 30 cut 22-31 % of the iterations but lost a feasible verdict on tower seed 3
 (3-factor subgraphs that need 37 iterations); K = 10 lost 3 on obstacles seed 0. Only infeasible runs reach
 the cap, on tower mostly 4-factor subgraphs, the size of its conflicts (``refute``'s tries, QuickXplain).
 
-The lead left open: ``--solver lm --max-factors 60 --arms-only`` (the prototype on the NLPs with arm
+The lead: ``--solver lm --max-factors 60 --arms-only`` (LM on the NLPs with arm
 variables of up to 60 factors, IPOPT's recorded runs for the rest) agreed with every verdict on seeds 0 and 3
 of the three scenes, at 0.47-0.52 of IPOPT's CPU on tower, 0.68-0.76 on obstacles, 0.84-1.01 on Hanoi (its
 infeasible runs at 0.4 of IPOPT's on tower). Without ``--arms-only`` it called up to 4 object-only runs
 (4-8 variables, ColOO rows) infeasible per corpus; on every NLP (no ``--max-factors``) the large ones made it
-slower than IPOPT (tower 2.7 against 1.2 s). Tried in the planner (not landed; arm NLPs of up to 60
-factors), interleaved with IPOPT alone, 5 seeds x 2 rounds:
+slower than IPOPT (tower 2.7 against 1.2 s). Stop 27 tried it in the planner, interleaved with IPOPT
+alone, 5 seeds x 2 rounds, and did not land it:
 - as it is, and for ``refute`` too: tower seed 2 learnt a third conflict and failed a replay (its points on
   their bounds: the upper arm on the table on the way to the first keyframe);
 - with ``refute`` left to IPOPT and inequality rows aimed 1 cm inside their bounds: tower 3.27 / 4.03 s
   against 3.66 / 5.02 s, the same 2 conflicts on every seed;
 - but obstacles went to 8.17 / 8.37 s against 6.16 / 7.67 s (seed 3: 2 plans blocked), and Hanoi to 0 of 5
   solved (100 s budget: its "infeasible" answers refuted by IPOPT again and again, every plan blocked).
+Stop 28 put it in the planner as an option (``plan_gnpp(lm_verdicts=True)``): the verdict on the true bounds,
+the point moved inside them afterwards (``LevenbergMarquardt.polish``), ``refute`` left to IPOPT, fixed-base
+arms only. Tower and Hanoi gained, obstacles lost (``solver.LM_MAX_FACTORS`` has the figures).
 """
 
 from __future__ import annotations
@@ -75,6 +78,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rlgp_exec.planning.gnpp import VARIANTS, plan_gnpp  # noqa: E402
+from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt  # noqa: E402
 from rlgp_exec.planning.gnpp.solver import SolverRun, ipopt_options, run_feasible  # noqa: E402
 from rlgp_exec.scene import load_scene, randomize  # noqa: E402
 
@@ -123,7 +127,7 @@ def record(scene_path: str, seed: int, variant: str, out: Path) -> int:
              "iterations": run.iterations, "cpu_s": run.cpu_s, "fixed_violation": run.fixed_violation}
         )
 
-    res = plan_gnpp(scene, variant, on_nlp=observe)
+    res = plan_gnpp(scene, variant, on_nlp=observe, lm_verdicts=False)  # every NLP's IPOPT run
     np.savez(out / "runs.npz", **arrays)
     meta = {"scene": scene.name, "seed": seed, "variant": variant, "status": res.status.value, "runs": runs}
     (out / "runs.json").write_text(json.dumps(meta, indent=1))
@@ -135,10 +139,11 @@ def record(scene_path: str, seed: int, variant: str, out: Path) -> int:
     return 0
 
 
-def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Function | _LevenbergMarquardt:
+def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Function | LevenbergMarquardt:
     plugin, _, qp = spec.partition(":")
     if plugin == "lm":
-        return _LevenbergMarquardt(oracle, ipopt_options(run["factors"], False)["ipopt.max_iter"])
+        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
+        return LevenbergMarquardt(x, p, oracle(x, p)[1], ipopt_options(run["factors"], False)["ipopt.max_iter"])
     if plugin == "ipopt":
         return ca.nlpsol("replay", "ipopt", oracle, {**ipopt_options(run["factors"], run["search"]), **changes})
     if plugin == "sqpmethod":
@@ -146,56 +151,6 @@ def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Func
         opts["qpsol_options"] = {"error_on_fail": False, "print_time": False, **QUIET_QP.get(opts["qpsol"], {})}
         return ca.nlpsol("replay", "sqpmethod", oracle, opts)
     raise SystemExit(f"unknown solver {spec!r}; valid: ipopt, lm, sqpmethod:QP (e.g. sqpmethod:daqp)")
-
-
-class _LevenbergMarquardt:
-    """A prototype verdict solver (``--solver lm``): Levenberg-Marquardt on the rows' violation
-    r = g - clip(g, lbg, ubg) (the rows within their bounds drop out), steps projected onto the variable box.
-    "Feasible" once every row is within 1e-6; it gives up when r.r falls by under 0.1 % for 5 steps after
-    at least 15, or when no damping finds a decrease. The objective is ignored; the point is not moved
-    off the bounds it reaches (an interior-point solver's points keep off them)."""
-
-    def __init__(self, oracle: ca.Function, max_iter: int) -> None:
-        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
-        g = oracle(x, p)[1]
-        self.gj = ca.Function("gj", [x, p], [g, ca.densify(ca.jacobian(g, x))])
-        self.max_iter, self.iterations = max_iter, 0
-
-    def _res(self, x: np.ndarray, a: dict) -> tuple[np.ndarray, np.ndarray]:
-        g, jac = self.gj(x, a["p"])
-        g = np.asarray(g).reshape(-1)
-        return g - np.clip(g, a["lbg"], a["ubg"]), np.asarray(jac)
-
-    def __call__(self, **a: np.ndarray) -> dict:
-        x = np.clip(a["x0"], a["lbx"], a["ubx"])
-        r, jac = self._res(x, a)
-        f, lam, stall, it = float(r @ r), 1e-3, 0, 0
-        for it in range(1, self.max_iter + 1):
-            if float(np.max(np.abs(r), initial=0.0)) <= 1e-6:
-                break
-            ja, ra = jac[r != 0], r[r != 0]
-            h, grad = ja.T @ ja, ja.T @ ra
-            while True:
-                step = -np.linalg.solve(h + lam * (np.diag(np.diag(h)) + 1e-9 * np.eye(h.shape[0])), grad)
-                xn = np.clip(x + step, a["lbx"], a["ubx"])
-                rn, jn = self._res(xn, a)
-                fn = float(rn @ rn)
-                if fn < f:
-                    lam = max(lam / 3.0, 1e-9)
-                    break
-                lam *= 4.0
-                if lam > 1e8:
-                    self.iterations = it
-                    return {"x": x}
-            stall = stall + 1 if (f - fn) < 1e-3 * f else 0
-            x, r, jac, f = xn, rn, jn, fn
-            if stall >= 5 and it >= 15:
-                break
-        self.iterations = it
-        return {"x": x}
-
-    def stats(self) -> dict:
-        return {"iter_count": self.iterations}
 
 
 def _changes(settings: list[str]) -> dict:

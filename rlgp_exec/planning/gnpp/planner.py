@@ -18,7 +18,7 @@ import dataclasses
 import enum
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -39,8 +39,8 @@ from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
-from rlgp_exec.planning.gnpp.pntc import MOVES, add_flags, add_moves, factors_of
-from rlgp_exec.planning.gnpp.solver import GraphSolver, SolverRun
+from rlgp_exec.planning.gnpp.pntc import MOVES, Var, add_flags, add_moves, factors_of
+from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
@@ -58,6 +58,7 @@ from rlgp_exec.planning.symbolic import (
 )
 from rlgp_exec.planning.validate import validate_with_fallbacks
 from rlgp_exec.robot import load_robot
+from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 
 __all__ = ["VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
@@ -126,13 +127,17 @@ def plan_gnpp(
     memory: PlannerMemory | None = None,
     trajectories: bool = True,
     on_nlp: Callable[[SolverRun], None] | None = None,
+    lm_verdicts: bool = False,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
     is CPU time (``cpu_clock``: this process and Fast Downward), the paper's measure: the same
     budget on a loaded machine takes longer, not fewer NLPs. ``trajectories``: each arm's moves of a
     solved plan optimised as 20 waypoints (``gnpp.trajectory``), else its straight motions. ``on_nlp``:
-    called after every graph-NLP run of IPOPT (``GraphSolver.observer``)."""
+    called after every graph-NLP run of IPOPT (``GraphSolver.observer``). ``lm_verdicts``: the search's small
+    arm NLPs answered by Levenberg-Marquardt (``solver.LM_MAX_FACTORS``: measured, not the default), else
+    IPOPT answers every NLP. A plan whose replay fails is laid out once more from its graph-NLP point moved
+    inside its inequality rows (``GraphSolver.polish``) before it is blocked."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     opts = VARIANTS[variant]
@@ -141,6 +146,8 @@ def plan_gnpp(
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
     solver.observer = on_nlp
+    if lm_verdicts:
+        solver.lm_max_factors = LM_MAX_FACTORS
     traj = Trajectories(lib) if trajectories else None
     if lib.mobile:
         solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)
@@ -247,38 +254,62 @@ def plan_gnpp(
             blocked_plans += 1
             reasons.append("conflicts refuted by other starts, or too large to check")
             continue
-        laid = phases_of(lib, ik, actions, values)
+        laid = _realise(scene, lib, ik, traj, variant, actions, values, t0, solver.n_solves)
+        if isinstance(laid, Plan) and not laid.success:
+            polished = solver.polish(graph, values)
+            if polished is not values:  # once more, the keyframes off their clearance bounds
+                log.info("%s iteration %d: replay failed (%s); again from a polished point", variant, it, laid.reason)
+                again = _realise(scene, lib, ik, traj, variant, actions, polished, t0, solver.n_solves)
+                laid = again if isinstance(again, Plan) else laid
         if isinstance(laid, str):
             forbidden.append(_whole(states))
             blocked_plans += 1
             reasons.append(laid)
             continue
-        straight, keyframes, transits = laid
-        phases, fallbacks = traj.optimise(straight, transits) if traj is not None else (list(straight), {})
-        validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
-        if traj is not None:
-            traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
-        names = tuple(str(a) for a in actions)
-        plan = Plan(
-            validation.ok,
-            variant,
-            names,
-            keyframes,
-            tuple(phases),
-            time.perf_counter() - t0,
-            solver.n_solves,
-            0,
-            validation,
-            "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet]),
-            level3=None if traj is None else traj.stats,
-        )
-        if validation.ok:
+        plan = laid
+        if plan.success:
             return result(GnppStatus.SOLVED, "ok", plan, it)
         log.info("%s iteration %d: replay failed: %s", variant, it, plan.reason)
         reasons.append(f"replay: {plan.reason}")
         forbidden.append(_whole(states))
         blocked_plans += 1
     return result(GnppStatus.TIMEOUT, f"no plan in {max_iterations} iterations ({'; '.join(reasons[-2:])})")
+
+
+def _realise(
+    scene: Scene,
+    lib: FactorLib,
+    ik: TopIK,
+    traj: Trajectories | None,
+    variant: str,
+    actions: tuple[GroundAction, ...],
+    values: Mapping[Var, FloatArray],
+    t0: float,
+    n_solves: int,
+) -> Plan | str:
+    """The plan of the graph-NLP's solution ``values``: its motions laid out (``phases_of``), trajectories
+    optimised (``traj``), replayed (``validate_with_fallbacks``); or why no motion was found."""
+    laid = phases_of(lib, ik, actions, values)
+    if isinstance(laid, str):
+        return laid
+    straight, keyframes, transits = laid
+    phases, fallbacks = traj.optimise(straight, transits) if traj is not None else (list(straight), {})
+    validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
+    if traj is not None:
+        traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
+    return Plan(
+        validation.ok,
+        variant,
+        tuple(str(a) for a in actions),
+        keyframes,
+        tuple(phases),
+        time.perf_counter() - t0,
+        n_solves,
+        0,
+        validation,
+        "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet]),
+        level3=None if traj is None else traj.stats,
+    )
 
 
 def _checked_conflict(

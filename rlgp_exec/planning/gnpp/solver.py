@@ -1,5 +1,6 @@
 """Feasibility of a (sub)graph-NLP: assemble its factors into one sparse CasADi NLP and solve it with
-IPOPT, returning the convergence point and every factor's violation there (Def. 4.3).
+IPOPT (or, optionally, Levenberg-Marquardt on small arm NLPs: ``LM_MAX_FACTORS``), returning the
+convergence point and every factor's violation there (Def. 4.3).
 
 The NLP is ``min 1e-3 |x - x_guess|^2  s.t.  lower <= h(x) <= upper, variable bounds``; it is built
 once per *structure* (factor keys and the pattern of shared variables, time shifts ignored) and
@@ -20,12 +21,14 @@ import numpy as np
 
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
+from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = [
     "FEAS_TOL",
+    "LM_MAX_FACTORS",
     "OBJECT_STARTS",
     "RESTART_ABOVE",
     "SEARCH",
@@ -89,6 +92,18 @@ RESTART_ABOVE = 60
 #: nowhere, and obstacles_tower_pr2 seed 4 found and ``refute``d the same false conflict (a block on the
 #: goal region beside an obstacle) 12 times, blocking 4 plans
 OBJECT_STARTS = 2
+#: with ``plan_gnpp(lm_verdicts=True)`` the conflict search's NLPs with arm variables of up to this many
+#: factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT (``refute`` keeps IPOPT); a feasible
+#: point is then moved off the bounds it reached (``LevenbergMarquardt.polish``). Recorded runs
+#: (``tools/16``, seeds 0 and 3 of tower, obstacles, Hanoi): the same verdicts, at 0.47-1.0 of IPOPT's CPU.
+#: Not the default: in whole plans (stop 28, gnpp_trn, 5 seeds, two interleaved rounds, median CPU) tower
+#: went from 4.73 / 4.79 s to 4.26 / 4.30 s and Hanoi from 7.77 / 7.35 to 6.37 / 7.02 s, but obstacles from
+#: 7.48 / 7.94 to 8.11 / 9.42 s, over the paper's 8.8 s: its seed 4 took other warm starts and found a false
+#: object-only conflict that ``refute`` refuted 12 times, then 6 plans failed the replay (the fingers on
+#: an obstacle on the way, not at a keyframe). Fixed-base arms only: on the HSR's reach test (a block
+#: beyond every base pose's reach) the search learnt a conflict with the base held (EqualBase), not the
+#: one that proves it for any base pose
+LM_MAX_FACTORS = 60
 
 
 def ipopt_options(n_factors: int, search: bool) -> dict:
@@ -159,8 +174,10 @@ def run_feasible(oracle: ca.Function, x: FloatArray, inputs: Mapping[str, FloatA
 
 @dataclass
 class _Built:
-    solver: ca.Function | None  # None: every variable pinned (nothing for IPOPT to do)
-    search: bool  # the solver runs with ``SEARCH``
+    nlp: dict | None  # the NLP {"x", "p", "f", "g"}; None: every variable pinned (nothing to solve)
+    options: dict  # IPOPT's
+    lm: LevenbergMarquardt | None  # the verdict solver of a small arm NLP in the search (``LM_MAX_FACTORS``)
+    search: bool  # IPOPT runs with ``SEARCH``
     g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
     lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
     ubg: FloatArray
@@ -168,6 +185,15 @@ class _Built:
     hi_all: FloatArray
     rows: list[tuple[int, int]]  # per input factor: its row range in ``g_fn``
     pre: Presolved
+    polisher: LevenbergMarquardt | None = None  # sparse, for ``GraphSolver.polish``
+    _ipopt: ca.Function | None = None
+
+    @property
+    def solver(self) -> ca.Function | None:
+        """IPOPT on ``nlp``, built at first use (a structure ``lm`` answers for never needs it)."""
+        if self._ipopt is None and self.nlp is not None:
+            self._ipopt = ca.nlpsol("graph_nlp", "ipopt", self.nlp, self.options)
+        return self._ipopt
 
 
 class GraphSolver:
@@ -188,9 +214,57 @@ class GraphSolver:
         self._cache: dict[tuple, _Built] = {}
         #: ``graph.structure`` of each subgraph ``refute`` found no feasible point for -> its tries
         self._upheld: dict[tuple, int] = {}
-        self.iters: list[int] = []  # IPOPT iterations per solve
+        self.iters: list[int] = []  # iterations per solver run (IPOPT's, or LM's)
         #: called after every IPOPT run (a diagnostic hook: ``tools/16_gnpp_nlp_corpus.py``)
         self.observer: Callable[[SolverRun], None] | None = None
+        #: the search's arm NLPs of up to this many factors answered by LM (``LM_MAX_FACTORS``); 0: IPOPT only
+        self.lm_max_factors = 0
+
+    def polish(self, factors: Sequence[Factor], values: Mapping[Var, FloatArray]) -> Mapping[Var, FloatArray]:
+        """A feasible point ``values`` of the subgraph (a whole plan's, before it is laid out as motions)
+        moved ``lm.BACKOFF`` inside its inequality rows where a few sparse Levenberg-Marquardt steps can
+        without leaving the rows (``LevenbergMarquardt.polish``), else ``values``. A local solver stops on
+        the first feasible point, often with a clearance row at its bound (the fingers at their margin
+        to an obstacle): the replay's meshes then touch, and the plan is thrown away."""
+        order = variables(factors)
+        built = self._built(factors, order)
+        if built.nlp is None:
+            return values
+        if built.polisher is None:
+            nlp = built.nlp
+            built.polisher = LevenbergMarquardt(nlp["x"], nlp["p"], nlp["g"], 0, sparse=True)
+        pre = built.pre
+        free = [order[i] for i in pre.free]
+        lbx, ubx = self._box(free)
+        x = np.concatenate([np.asarray(values[v], float) for v in free])
+        moved = built.polisher.polish(x, x, lbx, ubx, built.lbg, built.ubg)
+        if moved is x or not _violations(built, moved)[1]:
+            return values
+        return self._unpack(order, pre, free, moved)
+
+    def _built(self, factors: Sequence[Factor], order: list[Var]) -> _Built:
+        """The subgraph's NLP, from the cache of structures or built."""
+        key = self._structure(factors, order)
+        built = self._cache.get(key)
+        if built is None:
+            built = self._cache[key] = self._build(factors, order)
+        return built
+
+    def _box(self, free: Sequence[Var]) -> tuple[FloatArray, FloatArray]:
+        """The bounds (lbx, ubx) of the NLP variables ``free``."""
+        bounds = [self.lib.var_bounds(v.kind, v.owner) for v in free]
+        lbx = np.concatenate([b[0] for b in bounds]) if free else np.zeros(0)
+        ubx = np.concatenate([b[1] for b in bounds]) if free else np.zeros(0)
+        return lbx, ubx
+
+    def _unpack(self, order: list[Var], pre: Presolved, free: Sequence[Var], xs: FloatArray) -> dict[Var, FloatArray]:
+        """Every variable's value: the NLP point ``xs`` of the ``free`` ones, the pinned ones' constants."""
+        offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
+        values = {}
+        for i, v in enumerate(order):
+            kind, where = pre.slot_of(i)
+            values[v] = np.array(where, float) if kind == "const" else xs[offs[where] : offs[where + 1]].copy()
+        return values
 
     def _structure(self, factors: Sequence[Factor], order: list[Var]) -> tuple:
         pos = {v: i for i, v in enumerate(order)}
@@ -223,13 +297,16 @@ class GraphSolver:
         g = ca.vertcat(*[gs[k] for k in pre.kept])
         lbg = np.concatenate([lo[k] for k in pre.kept]) if pre.kept else np.zeros(0)
         ubg = np.concatenate([hi[k] for k in pre.kept]) if pre.kept else np.zeros(0)
-        solver = None
+        arms = any(order[i].kind == "q" for i in pre.free)
         search = not self.thorough and any(v.kind == "q" for v in order)
-        if pre.free:
-            nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g}
-            solver = ca.nlpsol("graph_nlp", "ipopt", nlp, ipopt_options(len(factors), search))
+        options = ipopt_options(len(factors), search)
+        nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g} if pre.free else None
+        lm = None
+        small = len(factors) <= self.lm_max_factors and not self.lib.mobile
+        if nlp is not None and arms and small and not self.thorough:
+            lm = LevenbergMarquardt(x, p, g, options["ipopt.max_iter"])
         g_fn = ca.Function("g", [x], [g_all])
-        return _Built(solver, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
+        return _Built(nlp, options, lm, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
 
     def _observe(
         self,
@@ -319,15 +396,10 @@ class GraphSolver:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
         t0 = time.perf_counter()
         order = variables(factors)
-        key = self._structure(factors, order)
-        built = self._cache.get(key)
-        if built is None:
-            built = self._cache[key] = self._build(factors, order)
+        built = self._built(factors, order)
         pre = built.pre
         free = [order[i] for i in pre.free]
-        bounds = [self.lib.var_bounds(v.kind, v.owner) for v in free]
-        lbx = np.concatenate([b[0] for b in bounds]) if free else np.zeros(0)
-        ubx = np.concatenate([b[1] for b in bounds]) if free else np.zeros(0)
+        lbx, ubx = self._box(free)
         eff, movable = {}, {}  # each variable's start (a pinned one: its constant); the free ones' NLP variable
         for i, v in enumerate(order):
             kind, where = pre.slot_of(i)
@@ -347,27 +419,27 @@ class GraphSolver:
         for x0 in starts:
             x0 = np.clip(x0, lbx, ubx)
             xs = x0
-            if built.solver is not None:
+            if built.lm is not None:
+                xs = np.asarray(built.lm(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)["x"])
+                self.iters.append(int(built.lm.stats()["iter_count"]))
+            elif built.solver is not None:
                 c0 = time.process_time()
                 res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
                 cpu = time.process_time() - c0
                 self.iters.append(int(built.solver.stats()["iter_count"]))
                 xs = np.asarray(res["x"]).reshape(-1)
-            g = np.asarray(built.g_fn(xs)).reshape(-1)
-            over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
-            over[~np.isfinite(g)] = np.inf
-            viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
-            feasible = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
-            if self.observer is not None and built.solver is not None:
+            viol, feasible = _violations(built, xs)
+            if built.lm is not None and feasible:  # the verdict stands; the point (a warm start) off its bounds
+                moved = built.lm.polish(xs, x0, lbx, ubx, built.lbg, built.ubg)
+                if moved is not xs:
+                    xs = moved
+                    viol, feasible = _violations(built, xs)
+            if self.observer is not None and built.lm is None and built.nlp is not None:
                 self._observe(built, factors, order, x0, lbx, ubx, viol, feasible, cpu)
             if feasible:
                 break
-        offs = np.cumsum([0, *[self.lib.dim(v.kind, v.owner) for v in free]])
-        values = {}
-        for i, v in enumerate(order):
-            kind, where = pre.slot_of(i)
-            values[v] = np.array(where, float) if kind == "const" else xs[offs[where] : offs[where + 1]].copy()
-        ok = bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
+        values = self._unpack(order, pre, free, xs)
+        ok = feasible
         dt = time.perf_counter() - t0
         self.n_solves += 1
         self.solve_time_s += dt
@@ -376,6 +448,15 @@ class GraphSolver:
             *(self.n_solves, len(factors), len(order), ok, dt * 1e3, self.iters[-2:]),
         )
         return SolveResult(Feasibility.FEASIBLE if ok else Feasibility.INFEASIBLE, values, viol, dt)
+
+
+def _violations(built: _Built, xs: FloatArray) -> tuple[tuple[float, ...], bool]:
+    """(every input factor's violation at the free variables' values ``xs``, all within ``FEAS_TOL``)."""
+    g = np.asarray(built.g_fn(xs)).reshape(-1)
+    over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
+    over[~np.isfinite(g)] = np.inf
+    viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
+    return viol, bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
 
 
 def _apart(
