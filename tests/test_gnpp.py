@@ -228,7 +228,7 @@ def test_variants_registered():
     from rlgp_exec.planning.registry import planner_names
 
     names = set(planner_names())
-    assert {"gnpp", "gnpp_t", "gnpp_tr", "gnpp_trn", "gnpp_trng", "oneway", "gnpp_trn_fd"} <= names
+    assert {"gnpp", "gnpp_t", "gnpp_tr", "gnpp_trn", "gnpp_trng", "oneway", "gnpp_trn_fd", "gnpp_trn_lm"} <= names
 
 
 def _obstacles(keep: list[str]):

@@ -1,6 +1,7 @@
 """GNPP: the Graph-NLP planner (minimal infeasible subgraphs + logic reformulation), registered as the
 planners ``gnpp`` (= ``gnpp_trn``), ``gnpp_t``, ``gnpp_tr``, ``gnpp_trn``, ``gnpp_trng`` and ``oneway`` (logic by
-the internal best-first search on the compiled task) and ``gnpp_trn_fd`` (logic by Fast Downward)."""
+the internal best-first search on the compiled task), ``gnpp_trn_fd`` (logic by Fast Downward) and ``gnpp_trn_lm``
+(the search's small arm NLPs answered by Levenberg-Marquardt: ``solver.LM_MAX_FACTORS``)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ BENCH_TIMEOUT_S = 100.0  # [s] CPU per planning call of a registered variant (th
 __all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
 
 
-def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
+def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts: bool = False):
     def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:
         from dataclasses import replace
 
@@ -25,7 +26,9 @@ def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL):
             why = f"holding {scene.start.held!r}" if scene.start.held else f"drawers out {dict(scene.start.openings)}"
             return Plan(False, name, (), np.zeros((0, 0)), (), 0.0, 0, 0, None,
                         f"unsupported start: {why}; {name} plans from empty hands and closed drawers (use rlgp)")
-        res = plan_gnpp(scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S, memory=memory)
+        res = plan_gnpp(
+            scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S, memory=memory, lm_verdicts=lm_verdicts
+        )
         return replace(res.plan, planner=name)
 
     return run
@@ -35,3 +38,4 @@ for _v in VARIANTS:
     register(_v, _planner(_v, _v))
 register("gnpp", _planner("gnpp_trn", "gnpp"))
 register("gnpp_trn_fd", _planner("gnpp_trn", "gnpp_trn_fd", Logic.FAST_DOWNWARD))  # the same, logic by Fast Downward
+register("gnpp_trn_lm", _planner("gnpp_trn", "gnpp_trn_lm", lm_verdicts=True))  # the same, LM verdicts

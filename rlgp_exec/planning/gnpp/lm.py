@@ -27,8 +27,9 @@ from rlgp_exec.robot.model import FloatArray
 __all__ = ["BACKOFF", "TOL", "LevenbergMarquardt"]
 
 TOL = 1e-6  # [m or rad] every row within this of its bounds: feasible
-#: [m or rad] how far ``polish`` moves a feasible point inside the inequality rows wider than 4 x it
+#: [m or rad] how far ``polish`` moves a feasible point inside the inequality rows, first; then ``INSETS``
 BACKOFF = 0.01
+INSETS = (BACKOFF, BACKOFF / 3, BACKOFF / 10)
 MIN_ITER = 15
 STALL = 5
 POLISH_ITER = 10
@@ -62,18 +63,28 @@ class LevenbergMarquardt:
     def polish(
         self, x: FloatArray, p: FloatArray, lbx: FloatArray, ubx: FloatArray, lbg: FloatArray, ubg: FloatArray
     ) -> FloatArray:
-        """The feasible point ``x`` moved towards ``BACKOFF`` inside every inequality row wider than
-        4 x ``BACKOFF`` (``POLISH_ITER`` steps at most), if the point reached still has every row within
-        ``TOL`` of its true bounds; else ``x``."""
+        """The feasible point ``x`` moved inside every inequality row (``INSETS``: ``BACKOFF`` first, less
+        where the rows leave no room for it; a quarter of a narrower row's width at most) within
+        ``POLISH_ITER`` steps each; where no inset is reached, the point the first try ends at brought back
+        onto the true rows if it can be; else ``x``."""
+        x = np.asarray(x, float)
         lbg, ubg = np.asarray(lbg, float), np.asarray(ubg, float)
-        inset = np.minimum(BACKOFF, 0.25 * (ubg - lbg))  # 0 on equality rows
-        lo, hi = lbg.copy(), ubg.copy()
-        lo[np.isfinite(lbg)] += inset[np.isfinite(lbg)]
-        hi[np.isfinite(ubg)] -= inset[np.isfinite(ubg)]
-        moved, _ = self._descend(np.asarray(x, float), p, lbx, ubx, lo, hi, POLISH_ITER, patient=False)
-        moved, _ = self._descend(moved, p, lbx, ubx, lbg, ubg, POLISH_ITER, patient=False)  # back onto the rows
+        lo_fin, hi_fin = np.isfinite(lbg), np.isfinite(ubg)
+        first = None
+        for inset in INSETS:
+            d = np.minimum(inset, 0.25 * (ubg - lbg))  # 0 on equality rows
+            lo, hi = lbg.copy(), ubg.copy()
+            lo[lo_fin] += d[lo_fin]
+            hi[hi_fin] -= d[hi_fin]
+            moved, _ = self._descend(x, p, lbx, ubx, lo, hi, POLISH_ITER, patient=False)
+            r, _ = self._residual(moved, p, lo, hi)
+            if float(np.max(np.abs(r), initial=0.0)) <= TOL:
+                return moved
+            first = moved if first is None else first
+        assert first is not None
+        moved, _ = self._descend(first, p, lbx, ubx, lbg, ubg, POLISH_ITER, patient=False)  # back onto the rows
         r, _ = self._residual(moved, p, lbg, ubg)
-        return moved if float(np.max(np.abs(r), initial=0.0)) <= TOL else np.asarray(x, float)
+        return moved if float(np.max(np.abs(r), initial=0.0)) <= TOL else x
 
     def _residual(self, x: FloatArray, p: FloatArray, lbg: FloatArray, ubg: FloatArray):
         """(r (m,), its Jacobian (m, n): an array, or a CSR matrix if ``sparse``)."""
