@@ -644,18 +644,44 @@ def test_levenberg_marquardt_gives_ipopts_verdict_on_the_searchs_arm_nlps(b4_set
 @pytest.mark.parametrize("sparse", [False, True])
 def test_polish_moves_a_point_off_its_clearance_bound_and_keeps_it_feasible(sparse):
     """x0 + x1 = 1 (an equality), x0 >= 0 (a clearance row) and -1 <= x1 <= 1.002 (a narrow-topped one): from
-    (0, 1), on the clearance bound, ``polish`` ends BACKOFF inside it with the equality kept; where the
-    rows leave no room inside (x0 >= 0 and x0 <= 0) the point stays feasible."""
+    (0, 1), on the clearance bound, ``polish`` ends BACKOFF inside it with the equality kept. Rows that leave
+    4 mm (x0 >= 0, x0 <= 0.015, one-sided each): the next inset, 3.3 mm, inside both; rows that leave no room
+    (x0 >= 0, x0 <= 0): the point itself."""
     import casadi as ca
 
-    from rlgp_exec.planning.gnpp.lm import BACKOFF, TOL, LevenbergMarquardt
+    from rlgp_exec.planning.gnpp.lm import BACKOFF, INSETS, TOL, LevenbergMarquardt
 
     x, p = ca.MX.sym("x", 2), ca.MX.sym("p", 2)
     lm = LevenbergMarquardt(x, p, ca.vertcat(x[0] + x[1], x[0], x[1]), 50, sparse=sparse)
     box = (np.full(2, -5.0), np.full(2, 5.0))
     lbg, ubg = np.array([1.0, 0.0, -1.0]), np.array([1.0, np.inf, 1.002])
     moved = lm.polish(np.array([0.0, 1.0]), np.zeros(2), *box, lbg, ubg)
-    assert abs(moved.sum() - 1.0) <= TOL and moved[0] >= BACKOFF - 1e-6 and -1.0 <= moved[1] <= 1.002
-    tight = LevenbergMarquardt(x, p, ca.vertcat(x[0], x[0]), 50, sparse=sparse)
-    kept = tight.polish(np.array([0.0, 0.3]), np.zeros(2), *box, np.array([0.0, -np.inf]), np.array([np.inf, 0.0]))
-    assert abs(kept[0]) <= TOL
+    assert abs(moved.sum() - 1.0) <= TOL and moved[0] >= BACKOFF - TOL and -1.0 <= moved[1] <= 1.002
+    two = LevenbergMarquardt(x, p, ca.vertcat(x[0], x[0]), 50, sparse=sparse)
+    start = np.array([0.0, 0.3])
+    mid = two.polish(start, np.zeros(2), *box, np.array([0.0, -np.inf]), np.array([np.inf, 0.015]))
+    assert INSETS[1] - TOL <= mid[0] <= 0.015 - INSETS[1] + TOL
+    kept = two.polish(start, np.zeros(2), *box, np.array([0.0, -np.inf]), np.array([np.inf, 0.0]))
+    assert kept is start
+
+
+def test_graph_solver_polish_moves_a_feasible_point_inside_every_inequality_row(b4_setup):
+    """A feasible subgraph (the conflict without one factor, Kin's kinematic switch with the arm and
+    collision rows) solved, then polished: still feasible, every inequality row at least the smallest of
+    ``lm.INSETS`` inside its bounds (a quarter of a narrower row's width)."""
+    from rlgp_exec.planning.gnpp.lm import INSETS
+
+    _, lib, _, graph, guess = b4_setup
+    solver = GraphSolver(lib)
+    conflict, _ = find_conflict(Checker(solver, guess), graph, ExtractOptions())
+    assert conflict is not None
+    rest = [f for f in conflict.factors if f.kind != "Kin"]
+    res = solver.solve(rest, guess)
+    assert res.feasible
+    out = solver.polish(rest, res.values)
+    assert out is not res.values
+    for f in rest:
+        ff = lib.factor(f.key)
+        g = np.asarray(ff.fn(*[out[v] for v in f.vars])).reshape(-1)
+        inset = np.minimum(INSETS[-1], 0.25 * (ff.upper - ff.lower))
+        assert np.all(g >= ff.lower + inset - 1e-6) and np.all(g <= ff.upper - inset + 1e-6), f

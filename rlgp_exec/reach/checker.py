@@ -118,7 +118,11 @@ def link_ancestors(body: int, client: int, joint_names: tuple[str, ...] | list[s
 class WorldChecker:
     """``checker(q) -> bool``: True when q collides (or comes within CLEARANCE of a fixture)."""
 
-    def __init__(self, scene: Scene, arm_group: str, clearance: float = CLEARANCE) -> None:
+    def __init__(
+        self, scene: Scene, arm_group: str, clearance: float = CLEARANCE, manipulator: str | None = None
+    ) -> None:
+        """``manipulator``: the arm whose tool holds an attached object and whose fingers may touch a knob
+        (None: the robot's first)."""
         from sim.world import build_world
 
         self.world = build_world(replace(scene, objects=()), tags=False)
@@ -131,14 +135,14 @@ class WorldChecker:
         self.radii = joint_radii(self.model, arm_group, self.robot.id, self.client)
         self.arm = np.array(self.model.group(arm_group))
         self.calls = 0
-        self.tool = self.model.manipulator().tool_frame
+        self.tool = self.model.manipulator(manipulator).tool_frame
         self.attached: tuple[int, FloatArray, float] | None = None  # (body, T_tool_obj, extra reach [m])
         self._held_boxes: dict[tuple[float, ...], tuple[int, list[float]]] = {}  # half extents -> (body, park)
         # the drawers as they are in this world (a replan's start may have one out; the graph's verdicts
         # hold for them closed)
         self.openings = {name: self.world.drawer_opening(name) for name in self.world.cabinets}
         self.knob: int | None = None  # a cabinet body whose drawer the fingers may touch (the hand on its knob)
-        hand = set(self.model.manipulator().links)
+        hand = set(self.model.manipulator(manipulator).links)
         self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
         self._moved_by = link_ancestors(self.robot.id, self.client, self.model.joint_names)
         self._tool_row = self.robot.link_index[self.tool] + 1

@@ -55,7 +55,9 @@ def plan_ompl(
     planner: str = "RRTConnect",
     timeout: float = 1.0,
 ) -> FloatArray | None:
-    """A collision-free path (n, nq) from q1 to q2, or None (timeout, or no certifiable path)."""
+    """A collision-free path (n, nq) from q1 to q2, or None (timeout, or no certifiable path). ``plan_idx``:
+    the joints planned (with any other that differs between the ends); ``lo_xy``/``hi_xy``: the base's
+    x, y box [m] when it is planned (joints 0 and 1)."""
     from ompl import base as ob
     from ompl import geometric as og
 
@@ -72,7 +74,9 @@ def plan_ompl(
     for k, i in enumerate(idx):
         if not (np.isfinite(lo[k]) and np.isfinite(hi[k])):  # continuous: one turn around the start
             lo[k], hi[k] = min(q1[i], q2[i]) - math.pi, max(q1[i], q2[i]) + math.pi
-    lo[:2], hi[:2] = np.minimum(lo_xy, np.minimum(q1[:2], q2[:2])), np.maximum(hi_xy, np.maximum(q1[:2], q2[:2]))
+    if idx.size >= 2 and idx[0] == 0 and idx[1] == 1:  # the base's x and y planned: the caller's box
+        lo[:2] = np.minimum(lo_xy, np.minimum(q1[:2], q2[:2]))
+        hi[:2] = np.maximum(hi_xy, np.maximum(q1[:2], q2[:2]))
     # an end a hair outside a joint limit (an optimiser's bound relaxation) must not void the query
     lo, hi = np.minimum(lo, np.minimum(q1[idx], q2[idx])), np.maximum(hi, np.maximum(q1[idx], q2[idx]))
     n = idx.size

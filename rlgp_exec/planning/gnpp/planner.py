@@ -40,6 +40,7 @@ from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import MOVES, Var, add_flags, add_moves, factors_of
+from rlgp_exec.planning.gnpp.repair import repair_transits
 from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
 from rlgp_exec.planning.memory import PlannerMemory
@@ -288,7 +289,8 @@ def _realise(
     n_solves: int,
 ) -> Plan | str:
     """The plan of the graph-NLP's solution ``values``: its motions laid out (``phases_of``), trajectories
-    optimised (``traj``), replayed (``validate_with_fallbacks``); or why no motion was found."""
+    optimised (``traj``), replayed (``validate_with_fallbacks``), moves that collide there planned again
+    (``repair_transits``) and replayed once more; or why no motion was found."""
     laid = phases_of(lib, ik, actions, values)
     if isinstance(laid, str):
         return laid
@@ -297,6 +299,11 @@ def _realise(
     validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
     if traj is not None:
         traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
+    if not validation.collision_free:  # the phases that collide are on their straight moves: repair those
+        repaired = repair_transits(lib, phases, transits, validation.collisions)
+        if repaired is not None:
+            log.info("%s: the replay collided (%s); again with moves OMPL planned", variant, validation.collisions[0])
+            validation, phases, kept = validate_with_fallbacks(scene, repaired, {k: fallbacks[k] for k in kept})
     return Plan(
         validation.ok,
         variant,

@@ -1,0 +1,69 @@
+"""Repairing a GNPP plan whose replay collides on the way between keyframes.
+
+The graph-NLP keeps the arms clear of everything at the keyframes and on the vertical lines into and out
+of them (``ColHO``); the moves between them (``motion.Transit``: an arm from where the plan left it to above
+its next keyframe, or an idle arm home) are straight joint motions, re-optimised by ``gnpp.trajectory``
+when it can. A move that still sweeps an arm through the table or a block in the replay (the upper arm
+over the table's edge on the way to a pick) used to cost the whole plan: it was blocked, and the logic
+planner asked for another. Here each such move is checked with the reachability graph's exact edge check
+(``WorldChecker.edge_collides``: the objects where they rest, the held one attached) and, if it collides,
+planned again by OMPL on the arm's joints (``reach.ompl_plan.plan_ompl``, every segment of its path passing
+that check). The keyframes stay; the replay then judges the repaired plan as any other.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.motion import Transit
+from rlgp_exec.planning.validate import Phase
+
+__all__ = ["OMPL_TIMEOUT_S", "repair_transits"]
+
+log = logging.getLogger(__name__)
+OMPL_TIMEOUT_S = 1.0  # [s] OMPL's time per move planned again
+_PHASE = re.compile(r"phase (\d+):")
+
+
+def repair_transits(
+    lib: FactorLib, phases: Sequence[Phase], transits: Sequence[Transit], collisions: Sequence[str]
+) -> list[Phase] | None:
+    """The phases with every move (``transits``, rows of the straight ``phases``) of a phase named in the
+    replay's ``collisions`` that fails the exact edge check replaced by an OMPL path; None if there is none
+    to repair (no move of those phases collides) or OMPL finds no certified path for one."""
+    from rlgp_exec.reach import WorldChecker
+    from rlgp_exec.reach.ompl_plan import plan_ompl
+    from rlgp_exec.scene.geometry import object_box
+
+    bad = {int(m.group(1)) for c in collisions if (m := _PHASE.match(c))}
+    out, repaired = list(phases), 0
+    # last rows first: a phase's earlier moves keep their row indices when a later one grows
+    for t in sorted((t for t in transits if t.phase in bad), key=lambda t: (t.phase, t.row), reverse=True):
+        path = out[t.phase].path
+        a, b = path[t.row], path[t.row + 1]
+        idx = lib.arm_index(t.arm)
+        joints = idx[3:] if lib.mobile else idx  # a mobile arm's base stands still on these moves
+        checker = WorldChecker(lib.scene, lib.model.manipulator(t.arm).group, manipulator=t.arm)
+        try:
+            checker.set_objects([replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in t.resting.items()])
+            if t.held is not None:
+                checker.attach(np.asarray(lib.objects[t.held[0]].size), t.held[1])
+            if not checker.edge_collides(a, b):
+                continue
+            sub = plan_ompl(checker, joints, a, b, a[:2], a[:2], timeout=OMPL_TIMEOUT_S)
+        finally:
+            checker.close()
+        if sub is None:
+            log.info("phase %d: no certified path for %s's move%s", t.phase, t.arm, " home" if t.home else "")
+            return None
+        out[t.phase] = replace(out[t.phase], path=np.vstack([path[: t.row], sub, path[t.row + 2 :]]))
+        repaired += 1
+        log.info("phase %d: %s's move%s planned again by OMPL (%d rows)", t.phase, t.arm,
+                 " home" if t.home else "", len(sub))
+    return out if repaired else None
