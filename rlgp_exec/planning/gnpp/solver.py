@@ -92,17 +92,20 @@ RESTART_ABOVE = 60
 #: nowhere, and obstacles_tower_pr2 seed 4 found and ``refute``d the same false conflict (a block on the
 #: goal region beside an obstacle) 12 times, blocking 4 plans
 OBJECT_STARTS = 2
-#: with ``plan_gnpp(lm_verdicts=True)`` the conflict search's NLPs with arm variables of up to this many
-#: factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT (``refute`` keeps IPOPT); a feasible
-#: point is then moved off the bounds it reached (``LevenbergMarquardt.polish``). Recorded runs
-#: (``tools/16``, seeds 0 and 3 of tower, obstacles, Hanoi): the same verdicts, at 0.47-1.0 of IPOPT's CPU.
-#: Not the default: in whole plans (stop 28, gnpp_trn, 5 seeds, two interleaved rounds, median CPU) tower
-#: went from 4.73 / 4.79 s to 4.26 / 4.30 s and Hanoi from 7.77 / 7.35 to 6.37 / 7.02 s, but obstacles from
-#: 7.48 / 7.94 to 8.11 / 9.42 s, over the paper's 8.8 s: its seed 4 took other warm starts and found a false
-#: object-only conflict that ``refute`` refuted 12 times, then 6 plans failed the replay (the fingers on
-#: an obstacle on the way, not at a keyframe). Fixed-base arms only: on the HSR's reach test (a block
-#: beyond every base pose's reach) the search learnt a conflict with the base held (EqualBase), not the
-#: one that proves it for any base pose
+#: with ``plan_gnpp(lm_verdicts=True)`` (the planner ``gnpp_trn_lm``) the conflict search's NLPs with arm
+#: variables of up to this many factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT
+#: (``refute`` keeps IPOPT); a feasible point is then moved off the bounds it reached
+#: (``LevenbergMarquardt.polish``). Recorded runs (``tools/16``, seeds 0 and 3 of tower, obstacles, Hanoi):
+#: the same verdicts at 0.47-1.0 of IPOPT's CPU. Not the default: side by side with ``gnpp_trn`` (stop 28,
+#: 5 seeds, median CPU) tower 3.30 / 3.93 s against 4.52 / 4.62 s and Hanoi 5.13 / 6.72 against 6.03 / 8.02,
+#: but obstacles 6.87 / 10.79 against 5.53 / 7.13: plans blocked after failed replays (seeds 0, 3, 4), their
+#: keyframes other than IPOPT's. On seed 0 a pick keyframe's upper arm entered the table 9.6 mm with 12 mm
+#: to spare on every sphere row: the upper arm's one sphere (8 cm, ``FactorLib._pr2_shapes``) under-covers
+#: its link, whose hull reaches 9.8 cm from the shoulder-elbow axis. Three 11 cm spheres against the
+#: fixtures fixed those seeds for LM, but blocked plans of IPOPT's on seeds 1 and 2 (21 s each): not landed.
+#: Seed 4 also learns a false object-only conflict (IPOPT's, from other warm starts) and refutes it 12 times.
+#: Fixed-base arms only: on the HSR's reach test (a block beyond every base pose's reach) the search learnt
+#: a conflict with the base held (EqualBase), not the one that proves it for any base pose
 LM_MAX_FACTORS = 60
 
 
