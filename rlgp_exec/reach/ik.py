@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import casadi as ca
 import numpy as np
 
+from rlgp_exec.ipopt import LEAN
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import fixture_boxes
@@ -163,7 +164,7 @@ class ReachIK:
             "ipopt.acceptable_tol": max(tol, 1e-5),
             "ipopt.mu_init": 1e-3,
         }
-        self._solver = ca.nlpsol("reach_ik", "ipopt", nlp, opts)
+        self._solver = ca.nlpsol("reach_ik", "ipopt", nlp, {**opts, **LEAN})
         self.clearance = clearance
         self._fk_pos = ca.Function("fk_pos", [z], [pos])
         self.home_arm = model.home()[self.idx[3:]]

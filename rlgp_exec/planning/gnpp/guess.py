@@ -12,6 +12,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
 from rlgp_exec.planning.gnpp.pntc import Factor, Var, moving, parents
 from rlgp_exec.planning.symbolic.model import SymbolicState
@@ -66,7 +67,7 @@ class TopIK:
                                     "ipopt.max_iter": IK_MAX_ITER}
             if not self.lib.mobile:
                 opts |= IK_FIXED_BASE
-            s = ca.nlpsol(f"top_ik_{arm}", "ipopt", {"x": q, "p": p, "f": ca.sumsqr(q - p[3:]), "g": g}, opts)
+            s = ca.nlpsol(f"top_ik_{arm}", "ipopt", {"x": q, "p": p, "f": ca.sumsqr(q - p[3:]), "g": g}, opts | LEAN)
             self._solvers[arm] = (s, lbg, ubg)
         return self._solvers[arm]
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
@@ -195,7 +196,7 @@ class _Built:
     def solver(self) -> ca.Function | None:
         """IPOPT on ``nlp``, built at first use (a structure ``lm`` answers for never needs it)."""
         if self._ipopt is None and self.nlp is not None:
-            self._ipopt = ca.nlpsol("graph_nlp", "ipopt", self.nlp, self.options)
+            self._ipopt = ca.nlpsol("graph_nlp", "ipopt", self.nlp, {**self.options, **LEAN})
         return self._ipopt
 
 

@@ -31,6 +31,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.budget import cpu_clock
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
@@ -471,7 +472,7 @@ def _build(
     opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
                             "ipopt.tol": 1e-7, "ipopt.max_resto_iter": MAX_RESTO_ITER}
     opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
-    solver = ca.nlpsol("keyframes", "ipopt", nlp, opts)
+    solver = ca.nlpsol("keyframes", "ipopt", nlp, {**opts, **LEAN})
     n_aux = 12 * len(aux)
     lo, hi = _keyframe_bounds(model, ik)
     lbx = np.r_[np.tile(lo, K), np.full(n_aux, -np.inf)]

@@ -55,6 +55,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.forked import Result, fork_map
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
 from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_rows_function
@@ -385,7 +386,7 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
             **({"ipopt.warm_start_init_point": "yes", "ipopt.bound_push": BOUND_PUSH, "ipopt.bound_frac": BOUND_PUSH}
                if at_guide else {}),
             "jac_g": jac_g}
-    solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, opts)
+    solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, {**opts, **LEAN})
     return (solver, x, g, jac, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
             np.asarray(lbg, float), np.asarray(ubg, float))
 
