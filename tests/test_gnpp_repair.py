@@ -58,3 +58,21 @@ def test_a_move_through_a_block_is_planned_again_round_it(lib):
     assert repair_transits(lib, phases, transits, ["phase 0: robot r_upper_arm_link ~ table"]) is not None
     still = [Phase(np.array([a, a]), None, arm=arm)]  # a move that does not move: nothing to repair
     assert repair_transits(lib, still, transits[:1], ["phase 0: robot r_upper_arm_link ~ table"]) is None
+
+
+def test_the_sphere_coverage_tool_reports_every_link_with_a_hull():
+    """``tools/17_gnpp_sphere_coverage.py``: a row per arm link with a collision shape, its fraction of hull
+    points outside every fixture sphere within [0, 1] and an overhang that is 0 where nothing sticks out."""
+    import subprocess
+    import sys
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "17_gnpp_sphere_coverage.py"
+    run = subprocess.run([sys.executable, str(tool), "--configs", "2"], capture_output=True, text=True, timeout=300,
+                         check=False)
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = [line.split() for line in run.stdout.splitlines() if line.startswith("r_")]
+    assert {"r_upper_arm_link", "r_forearm_link", "r_gripper_palm_link"} <= {r[0] for r in rows}
+    for name, frac, median, worst in rows:
+        f = float(frac.rstrip("%")) / 100
+        assert 0.0 <= f <= 1.0 and 0.0 <= float(median) <= float(worst), name
+        assert (f == 0.0) == (float(worst) == 0.0), name
