@@ -622,8 +622,6 @@ def test_levenberg_marquardt_gives_ipopts_verdict_on_the_searchs_arm_nlps(b4_set
     """The verdicts the search takes from ``lm.LevenbergMarquardt`` (arm NLPs of up to ``LM_MAX_FACTORS``
     factors): on every such run of a conflict search recorded with IPOPT alone (feasible and infeasible
     subgraphs), LM from the same start reaches the same verdict by the record's rule."""
-    import casadi as ca
-
     from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 
     _, lib, _, graph, guess = b4_setup
@@ -635,8 +633,7 @@ def test_levenberg_marquardt_gives_ipopts_verdict_on_the_searchs_arm_nlps(b4_set
     assert {r.feasible for r in mine} == {True, False}
     for run in mine:
         oracle = run.solver.oracle()
-        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
-        lm = LevenbergMarquardt(x, p, oracle(x, p)[1], ipopt_options(run.n_factors, True)["ipopt.max_iter"])
+        lm = LevenbergMarquardt.of_oracle(oracle, ipopt_options(run.n_factors, True)["ipopt.max_iter"])
         point = lm(**{k: run.inputs[k] for k in ("x0", "p", "lbx", "ubx", "lbg", "ubg")})["x"]
         assert run_feasible(oracle, point, run.inputs, run.fixed_violation) == run.feasible, run.n_factors
 

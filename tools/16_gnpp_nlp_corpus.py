@@ -142,8 +142,7 @@ def record(scene_path: str, seed: int, variant: str, out: Path) -> int:
 def _solver(spec: str, oracle: ca.Function, run: dict, changes: dict) -> ca.Function | LevenbergMarquardt:
     plugin, _, qp = spec.partition(":")
     if plugin == "lm":
-        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
-        return LevenbergMarquardt(x, p, oracle(x, p)[1], ipopt_options(run["factors"], False)["ipopt.max_iter"])
+        return LevenbergMarquardt.of_oracle(oracle, ipopt_options(run["factors"], False)["ipopt.max_iter"])
     if plugin == "ipopt":
         return ca.nlpsol("replay", "ipopt", oracle, {**ipopt_options(run["factors"], run["search"]), **changes})
     if plugin == "sqpmethod":

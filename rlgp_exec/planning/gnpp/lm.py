@@ -51,6 +51,12 @@ class LevenbergMarquardt:
         self.max_iter = max_iter
         self._iterations = 0
 
+    @classmethod
+    def of_oracle(cls, oracle: ca.Function, max_iter: int) -> LevenbergMarquardt:
+        """For an NLP given as its oracle (x, p) -> (f, g) (``nlpsol(...).oracle()``, a recorded corpus)."""
+        x, p = ca.MX.sym("x", oracle.size1_in(0)), ca.MX.sym("p", oracle.size1_in(1))
+        return cls(x, p, oracle(x, p)[1], max_iter)
+
     def __call__(
         self, *, x0: FloatArray, p: FloatArray, lbx: FloatArray, ubx: FloatArray, lbg: FloatArray, ubg: FloatArray
     ) -> dict[str, FloatArray]:

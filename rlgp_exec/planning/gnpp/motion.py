@@ -30,7 +30,7 @@ from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["LIFT", "Transit", "phases_of"]
+__all__ = ["LIFT", "Transit", "phases_of", "place", "world_checker"]
 
 LIFT_STEPS = 5  # rows of a lift (2 cm apart): straight up in the world, not only in joint space
 LIFT_NEWTON = 20  # damped least-squares iterations per row at most
@@ -97,27 +97,45 @@ def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> list[FloatArray
     return [q_up] if ok else None
 
 
+def world_checker(
+    lib: FactorLib, arm: str, resting: Mapping[str, FloatArray], held: tuple[str, FloatArray] | None
+):
+    """A ``reach.WorldChecker`` for ``arm``'s motions: the objects at ``resting`` world poses (4,) as
+    obstacles, ``held`` = (object, T_tool_obj (4, 4)) in its hand. The caller closes it."""
+    from rlgp_exec.reach import WorldChecker
+
+    checker = WorldChecker(lib.scene, lib.model.manipulator(arm).group, manipulator=arm)
+    place(checker, lib, resting, held)
+    return checker
+
+
+def place(checker, lib: FactorLib, resting: Mapping[str, FloatArray], held: tuple[str, FloatArray] | None) -> None:
+    """``checker``'s obstacles the objects at ``resting`` (replacing earlier ones), ``held`` in the hand (or none)."""
+    from rlgp_exec.scene.geometry import object_box
+
+    checker.set_objects([replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in resting.items()])
+    if held is not None:
+        checker.attach(np.asarray(lib.objects[held[0]].size), held[1])
+    else:
+        checker.detach()
+
+
 def _drive(
     lib: FactorLib,
+    arm: str,
     q1: FloatArray,
     base: FloatArray,
     resting: Mapping[str, FloatArray],
     held: tuple[str, FloatArray] | None,
 ) -> FloatArray | None:
-    """A checked path (n, nq) from the full configuration q1 to the base pose ``base`` (3,) [m, rad]
+    """A checked path (n, nq) from the full configuration q1 to ``arm``'s base pose ``base`` (3,) [m, rad]
     (the arm in one of ``drive_postures``), the objects at ``resting`` world poses (4,) as obstacles,
     ``held`` = (object, T_tool_obj (4, 4)) carried; None if no posture gives one."""
-    from rlgp_exec.reach import WorldChecker
     from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
-    from rlgp_exec.scene.geometry import object_box
 
     model = lib.model
-    checker = WorldChecker(lib.scene, model.manipulator().group)
+    checker = world_checker(lib, arm, resting, held)
     try:
-        boxes = [replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in resting.items()]
-        checker.set_objects(boxes)
-        if held is not None:
-            checker.attach(np.asarray(lib.objects[held[0]].size), held[1])
         q2 = q1.copy()
         q2[list(model.group("base"))] = base
         rigid, postures = drive_postures(model, q1, q2, empty_hand=held is None)
@@ -189,7 +207,7 @@ def phases_of(
                 still = [o for o in lib.objects if o not in holding.values()]
                 resting = {o: values.get(Var("x", o, k + 1), lib.start_pose(o)) for o in still}
                 grip = None if obj is None else (obj, rel_T(values[Var("x", obj, k + 1)], lib.upright(m)))
-                drive = _drive(lib, full(), values[v][:3], resting, grip)
+                drive = _drive(lib, m, full(), values[v][:3], resting, grip)
                 if drive is None:
                     return f"no collision-free drive for {a} to base {np.round(values[v][:3], 3).tolist()}"
                 path += list(drive[1:])

@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from rlgp_exec.planning.gnpp.geometry import FactorLib
-from rlgp_exec.planning.gnpp.motion import Transit
+from rlgp_exec.planning.gnpp.motion import Transit, place, world_checker
 from rlgp_exec.planning.validate import Phase
 
 __all__ = ["OMPL_TIMEOUT_S", "repair_transits"]
@@ -37,33 +37,34 @@ def repair_transits(
     """The phases with every move (``transits``, rows of the straight ``phases``) of a phase named in the
     replay's ``collisions`` that fails the exact edge check replaced by an OMPL path; None if there is none
     to repair (no move of those phases collides) or OMPL finds no certified path for one."""
-    from rlgp_exec.reach import WorldChecker
     from rlgp_exec.reach.ompl_plan import plan_ompl
-    from rlgp_exec.scene.geometry import object_box
 
     bad = {int(m.group(1)) for c in collisions if (m := _PHASE.match(c))}
     out, repaired = list(phases), 0
-    # last rows first: a phase's earlier moves keep their row indices when a later one grows
-    for t in sorted((t for t in transits if t.phase in bad), key=lambda t: (t.phase, t.row), reverse=True):
-        path = out[t.phase].path
-        a, b = path[t.row], path[t.row + 1]
-        idx = lib.arm_index(t.arm)
-        joints = idx[3:] if lib.mobile else idx  # a mobile arm's base stands still on these moves
-        checker = WorldChecker(lib.scene, lib.model.manipulator(t.arm).group, manipulator=t.arm)
-        try:
-            checker.set_objects([replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in t.resting.items()])
-            if t.held is not None:
-                checker.attach(np.asarray(lib.objects[t.held[0]].size), t.held[1])
+    checkers: dict = {}  # arm -> its WorldChecker, built once (a PyBullet world each)
+    try:
+        # last rows first: a phase's earlier moves keep their row indices when a later one grows
+        for t in sorted((t for t in transits if t.phase in bad), key=lambda t: (t.phase, t.row), reverse=True):
+            path = out[t.phase].path
+            a, b = path[t.row], path[t.row + 1]
+            idx = lib.arm_index(t.arm)
+            joints = idx[3:] if lib.mobile else idx  # a mobile arm's base stands still on these moves
+            checker = checkers.get(t.arm)
+            if checker is None:
+                checker = checkers[t.arm] = world_checker(lib, t.arm, t.resting, t.held)
+            else:
+                place(checker, lib, t.resting, t.held)
             if not checker.edge_collides(a, b):
                 continue
             sub = plan_ompl(checker, joints, a, b, a[:2], a[:2], timeout=OMPL_TIMEOUT_S)
-        finally:
+            if sub is None:
+                log.info("phase %d: no certified path for %s's move%s", t.phase, t.arm, " home" if t.home else "")
+                return None
+            out[t.phase] = replace(out[t.phase], path=np.vstack([path[: t.row], sub, path[t.row + 2 :]]))
+            repaired += 1
+            log.info("phase %d: %s's move%s planned again by OMPL (%d rows)", t.phase, t.arm,
+                     " home" if t.home else "", len(sub))
+    finally:
+        for checker in checkers.values():
             checker.close()
-        if sub is None:
-            log.info("phase %d: no certified path for %s's move%s", t.phase, t.arm, " home" if t.home else "")
-            return None
-        out[t.phase] = replace(out[t.phase], path=np.vstack([path[: t.row], sub, path[t.row + 2 :]]))
-        repaired += 1
-        log.info("phase %d: %s's move%s planned again by OMPL (%d rows)", t.phase, t.arm,
-                 " home" if t.home else "", len(sub))
     return out if repaired else None
