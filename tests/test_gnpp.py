@@ -447,6 +447,38 @@ def test_a_small_subgraph_starts_once_and_refute_tries_the_start_posture(b4_setu
     assert stuck.refute(part, bad, tries=0) is not None
 
 
+def test_refute_tries_a_fixed_base_arms_conflict_by_levenberg_marquardt(b4_setup, pr2):
+    """``refute`` on an arm's conflict (b4 beyond the right arm's reach): LM from the start posture and
+    ``REFUTE_TRIES_LM`` random starts, no IPOPT built, and the conflict upheld. The same factors with b4
+    moved within reach (just inside the edge: 1 cm further is out of reach) are refuted, at a point an
+    IPOPT solve of its own confirms; with ``lm_refute`` off, IPOPT's ``REFUTE_TRIES`` are tried instead."""
+    from rlgp_exec.planning.gnpp.solver import REFUTE_TRIES, REFUTE_TRIES_LM
+
+    scene, lib, _, graph, guess = b4_setup
+    conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
+    assert conflict is not None and {f.kind for f in conflict.factors} >= {"Kin", "Grasp"}
+    solver = GraphSolver(lib)
+    assert solver.refute(conflict.factors, guess) is None
+    assert solver.n_solves == 1 + REFUTE_TRIES_LM
+    assert all(b.lm is not None and b._ipopt is None for b in solver._cache.values())
+    ipopt = GraphSolver(lib)
+    ipopt.lm_refute = False
+    assert ipopt.refute(conflict.factors, guess) is None and ipopt.n_solves == 1 + REFUTE_TRIES
+
+    (b4,) = scene.objects
+    x0, y0 = b4.pose[0], b4.pose[1]
+    for y, reachable in ((-0.06, True), (-0.05, False)):
+        near = dataclasses.replace(scene, objects=(dataclasses.replace(b4, pose=(x0, y, *b4.pose[2:])),))
+        lib_near = FactorLib(pr2, near)
+        start = {v: np.r_[x0, y, g[2:]] if v.kind == "x" and np.allclose(g[:2], (x0, y0)) else g
+                 for v, g in guess.items()}
+        point = GraphSolver(lib_near).refute(conflict.factors, start)
+        assert (point is not None) == reachable, y
+        if point is not None:
+            res = GraphSolver(lib_near).solve(conflict.factors, point)  # IPOPT (the search's solve)
+            assert res.feasible and max(res.violations) <= 1e-6
+
+
 def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
     """``TopIK``: a point a fixed-base arm reached from none of its starts, asked again with another
     reference posture, is tried from that posture only; a reachable point is solved as before."""

@@ -137,7 +137,8 @@ def plan_gnpp(
     solved plan optimised as 20 waypoints (``gnpp.trajectory``), else its straight motions. ``on_nlp``:
     called after every graph-NLP run of IPOPT (``GraphSolver.observer``). ``lm_verdicts``: the search's small
     arm NLPs answered by Levenberg-Marquardt (``solver.LM_MAX_FACTORS``: measured, not the default), else
-    IPOPT answers every NLP. A plan whose replay fails is laid out once more from its graph-NLP point moved
+    IPOPT answers every NLP of the search (``refute``'s checks of a fixed-base arm's conflicts are LM's either way:
+    ``GraphSolver.lm_refute``). A plan whose replay fails is laid out once more from its graph-NLP point moved
     inside its inequality rows (``GraphSolver.polish``) before it is blocked."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")

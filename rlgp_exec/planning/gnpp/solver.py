@@ -79,6 +79,16 @@ SEARCH = {"ipopt.expect_infeasible_problem": "yes"}
 #: without ``SEARCH``): 4 tries miss it about half the time, 8 one time in four. On true conflicts 8
 #: tries cost ~0.2-0.8 s each (Hanoi's 12)
 REFUTE_TRIES = 8
+#: random starts ``refute`` tries when LM answers (``GraphSolver.lm_refute``: fixed-base arms, subgraphs with
+#: arm variables of up to ``LM_MAX_FACTORS`` factors). Measured (stop 29) on the reach conflicts of tower,
+#: obstacles and Hanoi runs with their object moved towards the shoulder until just feasible (14 cases,
+#: 24 of refute's starts each): LM reached a feasible point from 0.85 of IPOPT's starts on average
+#: (65 % against 77 %), more on the hardest (obstacles seed 3, b1: 2-4 of 24 against 1-2), at 0.15-0.5 of
+#: IPOPT's CPU per start; on 24 true conflicts of those runs 9 LM starts took 0.04-0.34 s against IPOPT's
+#: 0.13-0.97 s. Twice IPOPT's tries: a stronger check than IPOPT's 8, at about 0.4 of its CPU. Side by side
+#: with IPOPT's refute (5 seeds, interleaved, median CPU): tower 4.71 against 4.91 s, Hanoi 7.34 against 8.07,
+#: obstacles 5.98 against 7.21; the same conflicts, iterations and plan lengths on every seed
+REFUTE_TRIES_LM = 2 * REFUTE_TRIES
 #: an NLP of up to this many factors is solved from its guess only; a larger one found infeasible
 #: there gets a second start, the arms' start postures. A small subgraph's "infeasible" verdict ends,
 #: if at all, in a conflict that ``refute`` checks before it is believed (``conflicts.FILTER_MAX``:
@@ -95,7 +105,7 @@ RESTART_ABOVE = 60
 OBJECT_STARTS = 2
 #: with ``plan_gnpp(lm_verdicts=True)`` (the planner ``gnpp_trn_lm``) the conflict search's NLPs with arm
 #: variables of up to this many factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT
-#: (``refute`` keeps IPOPT); a feasible point is then moved off the bounds it reached
+#: (``refute``: LM by default, ``REFUTE_TRIES_LM``); a feasible point is then moved off the bounds it reached
 #: (``LevenbergMarquardt.polish``). Recorded runs (``tools/16``, seeds 0 and 3 of tower, obstacles, Hanoi):
 #: the same verdicts at 0.47-1.0 of IPOPT's CPU. Not the default: side by side with ``gnpp_trn`` (stop 28,
 #: 5 seeds, median CPU) tower 3.30 / 3.93 s against 4.52 / 4.62 s and Hanoi 5.13 / 6.72 against 6.03 / 8.02,
@@ -180,7 +190,7 @@ def run_feasible(oracle: ca.Function, x: FloatArray, inputs: Mapping[str, FloatA
 class _Built:
     nlp: dict | None  # the NLP {"x", "p", "f", "g"}; None: every variable pinned (nothing to solve)
     options: dict  # IPOPT's
-    lm: LevenbergMarquardt | None  # the verdict solver of a small arm NLP in the search (``LM_MAX_FACTORS``)
+    lm: LevenbergMarquardt | None  # the verdict solver of a small arm NLP (``LM_MAX_FACTORS``, ``lm_refute``)
     search: bool  # IPOPT runs with ``SEARCH``
     g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
     lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
@@ -223,6 +233,9 @@ class GraphSolver:
         self.observer: Callable[[SolverRun], None] | None = None
         #: the search's arm NLPs of up to this many factors answered by LM (``LM_MAX_FACTORS``); 0: IPOPT only
         self.lm_max_factors = 0
+        #: ``refute``'s tries on fixed-base arm subgraphs of up to ``LM_MAX_FACTORS`` factors by LM
+        #: (``REFUTE_TRIES_LM`` of them), not IPOPT
+        self.lm_refute = True
 
     def polish(self, factors: Sequence[Factor], values: Mapping[Var, FloatArray]) -> Mapping[Var, FloatArray]:
         """A feasible point ``values`` of the subgraph (a whole plan's, before it is laid out as motions)
@@ -306,8 +319,8 @@ class GraphSolver:
         options = ipopt_options(len(factors), search)
         nlp = {"x": x, "p": p, "f": W_REG * ca.sumsqr(x - p), "g": g} if pre.free else None
         lm = None
-        small = len(factors) <= self.lm_max_factors and not self.lib.mobile
-        if nlp is not None and arms and small and not self.thorough:
+        cap = (LM_MAX_FACTORS if self.lm_refute else 0) if self.thorough else self.lm_max_factors
+        if nlp is not None and arms and len(factors) <= cap and not self.lib.mobile:
             lm = LevenbergMarquardt(x, p, g, options["ipopt.max_iter"])
         g_fn = ca.Function("g", [x], [g_all])
         return _Built(nlp, options, lm, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
@@ -335,23 +348,28 @@ class GraphSolver:
         self.observer(run)
 
     def refute(
-        self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int = REFUTE_TRIES, seed: int = 0
+        self, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], tries: int | None = None, seed: int = 0
     ) -> Mapping[Var, FloatArray] | None:
         """A feasible point of the subgraph found from the arms' start postures (if it has arm variables:
         ``solve``'s second start, which the search gives small subgraphs no more) or one of ``tries``
         seeded random starts, or None: the check of a conflict before it is used (the solver is
         local). Arms start perturbed about their start postures; objects about their guessed poses (a
         few cm, a fraction of a turn), which also separates objects the guess put on top of each
-        other. IPOPT without ``SEARCH``. A subgraph with the same ``graph.structure`` as one checked
-        before from as many starts (the same problem, e.g. a conflict learnt again with its object held
-        a step longer) is not solved again: None. (Hanoi: 6 of its 12 conflicts.)"""
+        other. LM tries (``REFUTE_TRIES_LM`` by default) where ``lm_refute`` applies, else IPOPT without
+        ``SEARCH`` (``REFUTE_TRIES``); a point LM finds is moved off its bounds (``LevenbergMarquardt.polish``).
+        A subgraph with the same ``graph.structure`` as one checked before from as many starts (the same
+        problem, e.g. a conflict learnt again with its object held a step longer) is not solved again:
+        None. (Hanoi: 6 of its 12 conflicts.)"""
         key = structure(factors)
-        if self._upheld.get(key, -1) >= tries:
+        if self._upheld.get(key, -1) >= (REFUTE_TRIES if tries is None else tries):
             log.debug("the same problem as a subgraph checked before, not refuted")
             return None
         rng = np.random.default_rng(seed)
         restarts, self.restarts, self.thorough = self.restarts, 0, True
         try:
+            if tries is None:
+                lm = self._built(factors, variables(factors)).lm is not None
+                tries = REFUTE_TRIES_LM if lm else REFUTE_TRIES
             point = self._refute(factors, guess, tries, rng)
         finally:
             self.restarts, self.thorough = restarts, False
