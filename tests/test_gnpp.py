@@ -271,6 +271,32 @@ def test_a_conflict_only_a_bad_start_makes_is_refuted_and_a_real_one_is_not(pr2)
     assert solver.refute(real, guess, tries=8) is None
 
 
+def test_an_obstacle_only_collisions_name_is_set_aside_in_one_more_start(pr2):
+    """b1 onto the goal region beside the pinned o2, o1 (the other obstacle there) free: feasible (o1 can
+    stand anywhere). From the guess obstacles_tower_pr2 seed 4 had (b1 between the two, o1 where it starts)
+    and from ``OBJECT_STARTS`` perturbed ones the solver pushed b1 into a corner and o1 stayed in its way:
+    a false conflict, refuted 12 times. A last start sets o1 aside (``CLEAR_GAP``); a block named by
+    other factors is never moved there, and a subgraph without such an object gets no such start."""
+    from rlgp_exec.planning.gnpp.pntc import Factor, Var
+    from rlgp_exec.planning.gnpp.solver import OBJECT_STARTS
+
+    lib = FactorLib(pr2, _obstacles(["o1", "o2", "b1", "b3"]))
+    x = {o: Var("x", o, 3) for o in ("o1", "o2", "b1", "b3")}
+    guess = {x[o]: lib.start_pose(o) for o in ("o1", "o2", "b3")} | {x["b1"]: np.array([0.028, 0.015, 0.748, 0.766])}
+    place = Factor(("Place", "b1", "goal_region"), (x["b1"],), ())
+    refs = [Factor(("Ref", o), (x[o],), ()) for o in ("b3", "o2")]
+    cols = [Factor(("ColOO", "b1", o), (x["b1"], x[o]), ()) for o in ("o1", "o2")]
+    solver = GraphSolver(lib)
+    res = solver.solve([place, *refs, *cols], guess)
+    assert res.feasible and max(res.violations) <= 1e-6
+    assert len(solver.iters) == 2 + OBJECT_STARTS  # the guess, the perturbed starts, then o1 aside
+    assert np.linalg.norm(res.values[x["o1"]][:2] - lib.start_pose("o1")[:2]) > 0.2
+    pinned = [place, *refs, Factor(("Ref", "o1"), (x["o1"],), ()), *cols]  # both obstacles stay: no room
+    n = len(solver.iters)
+    assert not solver.solve(pinned, guess).feasible
+    assert len(solver.iters) - n == 1 + OBJECT_STARTS
+
+
 def test_obstacle_tower_is_planned_not_declared_infeasible():
     """Two obstacles fill the goal region; a false conflict once "proved" this task infeasible."""
     res = plan_gnpp(load_scene(SCENES / "obstacles_tower_pr2.toml"), "gnpp_trn", timeout_s=120.0)

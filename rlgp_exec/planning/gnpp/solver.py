@@ -28,6 +28,7 @@ from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = [
+    "CLEAR_GAP",
     "FEAS_TOL",
     "LM_MAX_FACTORS",
     "OBJECT_STARTS",
@@ -103,6 +104,13 @@ RESTART_ABOVE = 60
 #: nowhere, and obstacles_tower_pr2 seed 4 found and ``refute``d the same false conflict (a block on the
 #: goal region beside an obstacle) 12 times, blocking 4 plans
 OBJECT_STARTS = 2
+#: [m] how far apart ``_cleared`` sets the objects that only collision factors name: one more start for an
+#: object-only NLP, after ``OBJECT_STARTS``. In a relaxation without time such an object (an obstacle whose
+#: ``Ref`` and ``Equal`` chain were relaxed away) can stand anywhere; from where it started, in the block's way,
+#: the solver pushed the block into a corner: obstacles_tower_pr2 seed 4 (with ``gnpp_trn_lm``) learnt "b1 on
+#: the goal region beside the fixed o2, o1 free" as a conflict from every start, refuted it 12 times and
+#: blocked 6 plans; from o1 set aside it is feasible at once
+CLEAR_GAP = 0.3
 #: with ``plan_gnpp(lm_verdicts=True)`` (the planner ``gnpp_trn_lm``) the conflict search's NLPs with arm
 #: variables of up to this many factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT
 #: (``refute``: LM by default, ``REFUTE_TRIES_LM``); a feasible point is then moved off the bounds it reached
@@ -438,6 +446,9 @@ class GraphSolver:
         elif free:  # objects only: a few ms a solve; OBJECT_STARTS more, each object's guess perturbed
             rng = np.random.default_rng(len(factors))
             starts += [np.concatenate([self._jittered(v, guess[v], rng) for v in free]) for _ in range(OBJECT_STARTS)]
+            aside = _cleared(factors, guess, movable)
+            if aside is not None:
+                starts.append(np.concatenate([aside.get(v, guess[v]) for v in free]))
         for x0 in starts:
             x0 = np.clip(x0, lbx, ubx)
             xs = x0
@@ -479,6 +490,27 @@ def _violations(built: _Built, xs: FloatArray) -> tuple[tuple[float, ...], bool]
     over[~np.isfinite(g)] = np.inf
     viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
     return viol, bool(np.all(np.isfinite(xs))) and max(viol, default=0.0) <= FEAS_TOL
+
+
+def _cleared(
+    factors: Sequence[Factor], start: Mapping[Var, FloatArray], movable: Mapping[Var, Var]
+) -> dict[Var, FloatArray] | None:
+    """The free objects (``movable``'s values: each stands for the variables ``presolve`` made one) that only
+    collision factors name, each at a start set aside: ``CLEAR_GAP`` apart in a row beyond every other
+    object in ``start`` (+x, at their mean y); None if there is none. A start only: the verdict stays the
+    solver's at the point it reaches."""
+    named: dict[Var, bool] = {}  # free variable -> named by collision factors only
+    for f in factors:
+        for v in f.vars:
+            if v in movable:
+                named[movable[v]] = named.get(movable[v], True) and f.collision
+    aside = sorted((v for v, only in named.items() if only), key=str)
+    if not aside:
+        return None
+    rest = [np.asarray(w, float) for v, w in start.items() if movable.get(v) not in aside]
+    x0 = max((float(w[0]) for w in rest), default=0.0) + CLEAR_GAP
+    y0 = float(np.mean([w[1] for w in rest])) if rest else 0.0
+    return {v: np.r_[x0 + CLEAR_GAP * k, y0, np.asarray(start[v], float)[2:]] for k, v in enumerate(aside)}
 
 
 def _apart(
