@@ -505,6 +505,34 @@ def test_refute_tries_a_fixed_base_arms_conflict_by_levenberg_marquardt(b4_setup
             assert res.feasible and max(res.violations) <= 1e-6
 
 
+def test_the_second_start_is_given_at_the_full_graph_only(b4_setup, monkeypatch):
+    """``RESTARTED``: a large NLP found infeasible gets the arms' start postures as a second start at the
+    full graph only (there it turned every such verdict; at "No Time" none). b4's conflict is found at
+    "No Col": no solve of that search may take a second start; the checker is left as it was, and at the
+    full graph one infeasible NLP takes two."""
+    import rlgp_exec.planning.gnpp.solver as solver_mod
+    from rlgp_exec.planning.gnpp.conflicts import RESTARTED
+
+    monkeypatch.setattr(solver_mod, "RESTART_ABOVE", 0)  # every NLP counts as large
+    _, lib, _, graph, guess = b4_setup
+    assert RESTARTED == (Relaxation.NONE,)
+    asked: list[int] = []
+
+    class Recording(GraphSolver):
+        def solve(self, factors, start):
+            asked.append(self.restarts)
+            return super().solve(factors, start)
+
+    check = Checker(Recording(lib), guess)
+    conflict, _ = find_conflict(check, graph, ExtractOptions())
+    assert conflict is not None and conflict.relaxation is not Relaxation.NONE
+    assert asked and set(asked) == {0}
+    assert check.restart
+    solver = GraphSolver(lib)
+    assert not Checker(solver, guess).feasible(conflict.factors)
+    assert len(solver.iters) == 2
+
+
 def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
     """``TopIK``: a point a fixed-base arm reached from none of its starts, asked again with another
     reference posture, is tried from that posture only; a reachable point is solved as before."""

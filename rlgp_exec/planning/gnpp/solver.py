@@ -97,7 +97,7 @@ REFUTE_TRIES_LM = 2 * REFUTE_TRIES
 #: larger ones (whole stretches of a plan) block a plan unchecked. Recorded runs (tower, obstacles,
 #: Hanoi, 3 seeds each: 278 search verdicts "infeasible" from the guess): the second start found a
 #: feasible point 4 times, all on full-graph windows of over 100 factors, and took 45 % of the
-#: search's NLP time on Hanoi
+#: search's NLP time on Hanoi. The conflict search gives it at the full graph only (``conflicts.RESTARTED``)
 RESTART_ABOVE = 60
 #: starts after the guess for an NLP over object poses only (cheap: a few ms each), each object's guess
 #: perturbed (``X_JITTER``): from a guess with a block inside its neighbour a signed distance leads
