@@ -478,7 +478,7 @@ def test_refute_tries_a_fixed_base_arms_conflict_by_levenberg_marquardt(b4_setup
     ``REFUTE_TRIES_LM`` random starts, no IPOPT built, and the conflict upheld. The same factors with b4
     moved within reach (just inside the edge: 1 cm further is out of reach) are refuted, at a point an
     IPOPT solve of its own confirms; with ``lm_refute`` off, IPOPT's ``REFUTE_TRIES`` are tried instead."""
-    from rlgp_exec.planning.gnpp.solver import REFUTE_TRIES, REFUTE_TRIES_LM
+    from rlgp_exec.planning.gnpp.solver import REFUTE_LM_MAX_ITER, REFUTE_TRIES, REFUTE_TRIES_LM
 
     scene, lib, _, graph, guess = b4_setup
     conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
@@ -487,6 +487,7 @@ def test_refute_tries_a_fixed_base_arms_conflict_by_levenberg_marquardt(b4_setup
     assert solver.refute(conflict.factors, guess) is None
     assert solver.n_solves == 1 + REFUTE_TRIES_LM
     assert all(b.lm is not None and b._ipopt is None for b in solver._cache.values())
+    assert {b.lm.max_iter for b in solver._cache.values() if b.lm is not None} == {REFUTE_LM_MAX_ITER}
     ipopt = GraphSolver(lib)
     ipopt.lm_refute = False
     assert ipopt.refute(conflict.factors, guess) is None and ipopt.n_solves == 1 + REFUTE_TRIES

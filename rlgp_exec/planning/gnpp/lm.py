@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
+from rlgp_exec.casadi_call import BufferedFunction
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["BACKOFF", "INSETS", "TOL", "LevenbergMarquardt"]
@@ -50,6 +51,9 @@ class LevenbergMarquardt:
         self.sparse = sparse
         self.max_iter = max_iter
         self._iterations = 0
+        self._call = BufferedFunction(self._gj)  # DM conversions were most of LM's time
+        sp_jac = self._gj.sparsity_out(1)
+        self._jac_idx = (np.asarray(sp_jac.row()), np.asarray(sp_jac.colind()), (g.numel(), x.numel()))
 
     @classmethod
     def of_oracle(cls, oracle: ca.Function, max_iter: int) -> LevenbergMarquardt:
@@ -90,9 +94,9 @@ class LevenbergMarquardt:
 
     def _residual(self, x: FloatArray, p: FloatArray, lbg: FloatArray, ubg: FloatArray):
         """(r (m,), its Jacobian (m, n): an array, or a CSR matrix if ``sparse``)."""
-        g_dm, jac_dm = self._gj(x, p)
-        g = np.asarray(g_dm, float).reshape(-1)
-        jac = jac_dm.sparse().tocsr() if self.sparse else np.asarray(jac_dm, float).reshape(g.size, x.size)
+        g, nz = self._call(x, p)
+        row, colind, shape = self._jac_idx
+        jac = sp.csc_matrix((nz, row, colind), shape=shape).tocsr() if self.sparse else self._call.dense(1, nz)
         return g - np.clip(g, lbg, ubg), jac
 
     def _solve(self, h, grad: FloatArray, lam: float) -> FloatArray:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from rlgp_exec.casadi_call import BufferedFunction
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
@@ -90,6 +91,10 @@ REFUTE_TRIES = 8
 #: with IPOPT's refute (5 seeds, interleaved, median CPU): tower 4.71 against 4.91 s, Hanoi 7.34 against 8.07,
 #: obstacles 5.98 against 7.21; the same conflicts, iterations and plan lengths on every seed
 REFUTE_TRIES_LM = 2 * REFUTE_TRIES
+#: LM's steps per ``refute`` try at most. Of the 423 tries above that reached a feasible point, 417 did within
+#: 28 steps (the other 6 at IPOPT's cap, 57-63); on a true conflict a try runs to the cap unless the violation
+#: stalls (Hanoi's 9-factor conflicts: every try to 69 steps)
+REFUTE_LM_MAX_ITER = 30
 #: an NLP of up to this many factors is solved from its guess only; a larger one found infeasible
 #: there gets a second start, the arms' start postures. A small subgraph's "infeasible" verdict ends,
 #: if at all, in a conflict that ``refute`` checks before it is believed (``conflicts.FILTER_MAX``:
@@ -200,7 +205,7 @@ class _Built:
     options: dict  # IPOPT's
     lm: LevenbergMarquardt | None  # the verdict solver of a small arm NLP (``LM_MAX_FACTORS``, ``lm_refute``)
     search: bool  # IPOPT runs with ``SEARCH``
-    g_fn: ca.Function  # the NLP's free variables -> every input factor's rows
+    g_fn: BufferedFunction  # the NLP's free variables -> every input factor's rows
     lbg: FloatArray  # bounds of the NLP's rows (the factors ``pre.kept``)
     ubg: FloatArray
     lo_all: FloatArray  # bounds of every input factor's rows (``g_fn``)
@@ -329,8 +334,8 @@ class GraphSolver:
         lm = None
         cap = (LM_MAX_FACTORS if self.lm_refute else 0) if self.thorough else self.lm_max_factors
         if nlp is not None and arms and len(factors) <= cap and not self.lib.mobile:
-            lm = LevenbergMarquardt(x, p, g, options["ipopt.max_iter"])
-        g_fn = ca.Function("g", [x], [g_all])
+            lm = LevenbergMarquardt(x, p, g, REFUTE_LM_MAX_ITER if self.thorough else options["ipopt.max_iter"])
+        g_fn = BufferedFunction(ca.Function("g", [x], [g_all]))
         return _Built(nlp, options, lm, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
 
     def _observe(
@@ -485,7 +490,8 @@ class GraphSolver:
 
 def _violations(built: _Built, xs: FloatArray) -> tuple[tuple[float, ...], bool]:
     """(every input factor's violation at the free variables' values ``xs``, all within ``FEAS_TOL``)."""
-    g = np.asarray(built.g_fn(xs)).reshape(-1)
+    (nz,) = built.g_fn(xs)
+    g = built.g_fn.dense(0, nz).reshape(-1)
     over = np.maximum(np.maximum(built.lo_all - g, g - built.hi_all), 0.0)
     over[~np.isfinite(g)] = np.inf
     viol = tuple(float(over[a:b].max()) if b > a else 0.0 for a, b in built.rows)
