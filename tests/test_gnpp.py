@@ -534,19 +534,32 @@ def test_the_second_start_is_given_at_the_full_graph_only(b4_setup, monkeypatch)
     assert len(solver.iters) == 2
 
 
-def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2):
+def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2, monkeypatch):
     """``TopIK``: a point a fixed-base arm reached from none of its starts, asked again with another
-    reference posture, is tried from that posture only; a reachable point is solved as before."""
+    reference posture, is tried from that posture only; a reachable point is solved as before. IPOPT
+    tries the starts after the first only where LM reaches the point from them (``IK_SCREEN``): none for
+    a point beyond the arm, and the same answers as IPOPT from every start for points within reach."""
+    import rlgp_exec.planning.gnpp.guess as guess_mod
+
     lib = FactorLib(pr2, _tower(["b1"], ["(on b1 goal_region)"]))
     ik, home = TopIK(lib), lib.home_q("right_arm")
     far = np.array([2.0, -0.2, 1.0])  # beyond the arm
     assert not ik.solve("right_arm", far, home)[0]
-    n = ik.n_solves
-    assert n > 1
+    assert ik.n_solves == 1 and ik.n_screened == 1 + guess_mod.RESTARTS
     ok, q = ik.solve("right_arm", far, home + 0.1)
-    assert not ok and ik.n_solves == n + 1 and np.allclose(q, home + 0.1)
+    assert not ok and ik.n_solves == 2 and np.allclose(q, home + 0.1)
     near = lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02])
     assert ik.solve("left_arm", near, lib.home_q("left_arm"))[0]
+
+    rng = np.random.default_rng(3)
+    refs = [home + rng.normal(0.0, 0.8, home.size) for _ in range(4)]
+    points = [lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02]), np.array([0.45, -0.35, 0.8])]
+    screened = [TopIK(lib).solve("right_arm", x, r) for x in points for r in refs]
+    monkeypatch.setattr(guess_mod, "IK_SCREEN", False)
+    every = [TopIK(lib).solve("right_arm", x, r) for x in points for r in refs]
+    assert [ok for ok, _ in screened] == [ok for ok, _ in every] and any(ok for ok, _ in every)
+    for (ok, q1), (_, q2) in zip(screened, every, strict=True):
+        assert not ok or np.allclose(q1, q2)
 
 
 def test_refute_does_not_solve_again_a_conflict_learnt_with_the_object_left_a_step_longer(b4_setup):
@@ -626,11 +639,11 @@ def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2
         assert ik.solve(arm, top, lib.home_q(arm))[0], o
         iters.append(int(ik._solvers[arm][0].stats()["iter_count"]))
     assert max(iters) < IK_MAX_ITER / 2, iters
-    n0 = ik.n_solves
+    n0, s0 = ik.n_solves, ik.n_screened
     # b4's place at the back left, out of the right arm's reach (see b4_setup): its starts ran to IPOPT's
     # default limit (100 iterations) or near it
     ok, _ = ik.solve("right_arm", np.array([-0.35, 0.15, 0.745]), lib.home_q("right_arm"))
-    assert not ok and ik.n_solves - n0 == 2 + RESTARTS  # every start tried
+    assert not ok and ik.n_solves - n0 == 1 and ik.n_screened - s0 == 1 + RESTARTS  # every start: LM after the first
     assert ik._solvers["right_arm"][0].stats()["iter_count"] <= IK_MAX_ITER
 
 

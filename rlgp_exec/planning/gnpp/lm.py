@@ -18,6 +18,8 @@ which only just fit on their pegs, "infeasible": stop 27.) ``sparse`` steps serv
 
 from __future__ import annotations
 
+from typing import Any
+
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
@@ -27,6 +29,8 @@ from rlgp_exec.casadi_call import BufferedFunction
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["BACKOFF", "INSETS", "TOL", "LevenbergMarquardt"]
+
+Symbolic = Any  # ca.MX or ca.SX (both work; CasADi's stubs take one kind per call)
 
 TOL = 1e-6  # [m or rad] every row within this of its bounds: feasible
 BACKOFF = 0.01  # [m or rad] how far ``polish`` tries first to move a point inside the inequality rows
@@ -41,11 +45,11 @@ LAMBDA_MAX = 1e8
 
 class LevenbergMarquardt:
     """The feasibility problem ``lbg <= g(x, p) <= ubg, lbx <= x <= ubx`` of the NLP ``{"x", "p", "g"}``
-    (MX expressions; any objective is not used: the answer is a point, feasible or the least violating
+    (MX or SX expressions; any objective is not used: the answer is a point, feasible or the least violating
     found). Called like an nlpsol (x0, p, lbx, ubx, lbg, ubg -> {"x": ...}, then ``stats()``).
     ``sparse``: sparse steps (a whole plan's graph; dense ones are faster on small NLPs)."""
 
-    def __init__(self, x: ca.MX, p: ca.MX, g: ca.MX, max_iter: int, sparse: bool = False) -> None:
+    def __init__(self, x: Symbolic, p: Symbolic, g: Symbolic, max_iter: int, sparse: bool = False) -> None:
         jac = ca.jacobian(g, x)
         self._gj = ca.Function("g_jac", [x, p], [g, jac if sparse else ca.densify(jac)])
         self.sparse = sparse
@@ -68,6 +72,11 @@ class LevenbergMarquardt:
         lbg, ubg = np.asarray(lbg, float), np.asarray(ubg, float)
         x, self._iterations = self._descend(x, p, lbx, ubx, lbg, ubg, self.max_iter)
         return {"x": x}
+
+    def violation(self, x: FloatArray, p: FloatArray, lbg: FloatArray, ubg: FloatArray) -> float:
+        """The largest distance of a row of g(x, p) outside [lbg, ubg] (``TOL`` or less: feasible)."""
+        r, _ = self._residual(np.asarray(x, float), p, np.asarray(lbg, float), np.asarray(ubg, float))
+        return float(np.max(np.abs(r), initial=0.0))
 
     def stats(self) -> dict:
         return {"iter_count": self._iterations, "return_status": "levenberg-marquardt"}
