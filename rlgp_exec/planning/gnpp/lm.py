@@ -1,4 +1,5 @@
-"""Levenberg-Marquardt on a graph-NLP's row violations: the verdicts of GNPP's small arm NLPs.
+"""Levenberg-Marquardt on an NLP's row violations: GNPP's quick feasibility answers (``refute``'s random
+starts, the top-grasp IK's screen of its later starts, ``gnpp_trn_lm``'s verdicts).
 
 GNPP asks "is this subgraph feasible?" of hundreds of small NLPs per plan; IPOPT's "infeasible" verdicts,
 which run to its iteration cap, were 60-67 % of its CPU (``tools/16_gnpp_nlp_corpus.py``). Here the
