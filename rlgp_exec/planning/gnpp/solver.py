@@ -129,7 +129,13 @@ CLEAR_GAP = 0.3
 #: to spare on every sphere row: the upper arm's one sphere (8 cm, ``FactorLib._pr2_shapes``) under-covers
 #: its link, whose hull reaches 9.8 cm from the shoulder-elbow axis. Three 11 cm spheres against the
 #: fixtures fixed those seeds for LM, but blocked plans of IPOPT's on seeds 1 and 2 (21 s each): not landed.
-#: Seed 4 also learns a false object-only conflict (IPOPT's, from other warm starts) and refutes it 12 times.
+#: Seed 4 also learned a false object-only conflict (IPOPT's, from other warm starts) and refuted it 12 times
+#: (fixed by ``CLEAR_GAP``'s start). Stop 29, after refute by LM and LM's buffered evaluations, 5 seeds: tower
+#: 3.27 against 3.22 s, Hanoi 2.79 against 4.11, obstacles 6.05 against 4.06 (seeds 0, 3, 4: 1-2 plans blocked
+#: after replays with a finger on an obstacle (seeds 3, 4: 7.7 mm into o1 on a place's last descent, the
+#: finger link's hull 2.8 cm thick where its two spheres cover 1.6 cm) or the upper arm on the table (seed 0)).
+#: Fat finger spheres (2 per finger, 2.5 cm) with three upper-arm spheres made gnpp_trn's obstacles plans
+#: 1.5x slower (3-4 plans blocked per seed): not landed
 #: Fixed-base arms only: on the HSR's reach test (a block beyond every base pose's reach) the search learnt
 #: a conflict with the base held (EqualBase), not the one that proves it for any base pose
 LM_MAX_FACTORS = 60
