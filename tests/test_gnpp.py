@@ -782,3 +782,57 @@ def test_graph_solver_polish_moves_a_feasible_point_inside_every_inequality_row(
         g = np.asarray(ff.fn(*[out[v] for v in f.vars])).reshape(-1)
         inset = np.minimum(INSETS[-1], 0.25 * (ff.upper - ff.lower))
         assert np.all(g >= ff.lower + inset - 1e-6) and np.all(g <= ff.upper - inset + 1e-6), f
+
+
+
+def _upper_arm_in_torso(world, prefix: str, q: np.ndarray) -> float:
+    """The signed distance [m] of the PR2's upper arm (``prefix``: "l_" or "r_") from torso_lift_link at q."""
+    import pybullet as p
+
+    robot = world.robot
+    robot.set_q(q)
+    a, b = robot.link_index["torso_lift_link"], robot.link_index[f"{prefix}upper_arm_link"]
+    cps = p.getClosestPoints(robot.id, robot.id, 0.05, a, b, physicsClientId=world.client)
+    return min((c[8] for c in cps), default=0.05)
+
+
+def _holds(lib: FactorLib, key: tuple, *args: np.ndarray) -> bool:
+    ff = lib.factor(key)
+    g = np.asarray(ff.fn(*args)).reshape(-1)
+    return bool(np.all(g >= ff.lower - 1e-9) and np.all(g <= ff.upper + 1e-9))
+
+
+def test_a_shoulder_panned_further_out_than_allowed_is_a_colfix_violation_and_the_limit_clears_the_torso(pr2):
+    """``PAN_OUT_MAX`` keeps the upper arm's housing off the torso: in PyBullet, at that pan (either arm,
+    random shoulder lifts and upper-arm rolls) the upper arm clears torso_lift_link; 0.25 rad further out
+    some roll puts it more than the replay's 2 mm into the torso. ColFix holds at the home posture (the
+    wrist unfolded) with the shoulder panned out just inside the limit, and not just past it."""
+    import pybullet as p
+
+    from rlgp_exec.planning.gnpp.geometry import PAN_OUT_MAX
+    from sim.world import build_world
+
+    scene = _tower(["b1"], ["(on b1 goal_region)"])
+    lib = FactorLib(pr2, scene)
+    world = build_world(scene, tags=False)
+    rng = np.random.default_rng(0)
+    try:
+        for side, prefix, arm in ((1.0, "l_", "left_arm"), (-1.0, "r_", "right_arm")):
+            pan, lift, roll = (
+                pr2.index(f"{prefix}{j}_joint") for j in ("shoulder_pan", "shoulder_lift", "upper_arm_roll")
+            )
+            for out, clear in ((PAN_OUT_MAX, True), (PAN_OUT_MAX + 0.25, False)):
+                qs = np.tile(lib.q_nominal, (60, 1))
+                qs[:, pan], qs[:, lift] = side * out, rng.uniform(-0.5, 1.3, 60)
+                qs[:, roll] = rng.uniform(pr2.limits.lower[roll], pr2.limits.upper[roll], 60)
+                deepest = min(_upper_arm_in_torso(world, prefix, q) for q in qs)
+                assert (deepest > 0.0) if clear else (deepest < -2e-3), (prefix, out, deepest)
+            names = [pr2.joint_names[i] for i in lib.arm_index(arm)]
+            q = lib.home_q(arm)
+            q[names.index(f"{prefix}wrist_flex_joint")] = -1.0  # the tucked start folds the fingers back
+            q[names.index(f"{prefix}shoulder_pan_joint")] = side * (PAN_OUT_MAX - 0.05)
+            assert _holds(lib, ("ColFix", arm), q)
+            q[names.index(f"{prefix}shoulder_pan_joint")] = side * (PAN_OUT_MAX + 0.05)
+            assert not _holds(lib, ("ColFix", arm), q)
+    finally:
+        p.disconnect(world.client)

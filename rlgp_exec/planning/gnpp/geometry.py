@@ -64,6 +64,11 @@ PLACE_LIFT = 0.003  # [m] an object is released this far above its support
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
 PAN_CROSS_MAX = 0.1  # [rad] (PR2) shoulder pan towards the other arm's side at most
+#: [rad] (PR2) shoulder pan outwards at most: further out, the upper arm's housing behind the shoulder meets the
+#: torso at some upper-arm rolls. Probed in PyBullet (upper arm against torso_lift_link, the worst of 12-20 rolls
+#: and 7 shoulder lifts): 3.8 mm clear at 1.1 rad, 0.6 mm at 1.2, 2 mm in at 1.3, either arm. Hanoi seed 0 once
+#: ended a left-arm place at 1.295 rad, 1.9 mm into the torso, and the replay blocked the plan
+PAN_OUT_MAX = 1.1
 #: (PR2) the open fingertips' inner faces this far from the tool point along the closing axis [m]:
 #: probed in the PyBullet model at the 0.5 rad finger opening every plan keeps
 FINGER_INNER = 0.0375
@@ -414,9 +419,9 @@ class FactorLib:
             for k, n in enumerate(names):
                 if "wrist_flex" in n:
                     rows.add(q[k], WRIST_FLEX_MIN, ca.inf)
-                if "shoulder_pan" in n:  # an arm crossing to the far side hits the torso with its upper arm
+                if "shoulder_pan" in n:  # an arm crossing to the far side, or far out: its upper arm hits the torso
                     side = -1.0 if n.startswith("r_") else 1.0
-                    rows.add(side * q[k], -PAN_CROSS_MAX, ca.inf)
+                    rows.add(side * q[k], -PAN_CROSS_MAX, PAN_OUT_MAX)
         for b in self.fixture_boxes:
             Tinv = np.linalg.inv(b.T)
             for k in sh.fixture:
