@@ -150,3 +150,38 @@ def test_an_object_only_nlp_gets_more_starts_only_when_infeasible(setup):
     n = len(solver.iters)
     assert solver.solve([ref, on], start).feasible
     assert len(solver.iters) - n == 1
+
+
+@pytest.mark.parametrize("rel", [Relaxation.NO_ROBOT | Relaxation.NO_COL, Relaxation.NONE])
+def test_the_assembled_jacobian_is_casadis_of_the_rows(setup, rel):
+    """IPOPT's (and LM's) Jacobian of a subgraph's rows comes from the factors' own (``gnpp.assembly``): at
+    random points within the variable bounds it equals CasADi's AD of the plain rows, entry by entry, and
+    so does the one the built nlpsol evaluates. The graph has variables merged by ``presolve`` (one NLP
+    variable in two slots of a factor) and factors with constant slots."""
+    import casadi as ca
+
+    from rlgp_exec.planning.gnpp.assembly import assemble
+
+    lib, graph, _ = setup
+    sub = relax(graph, rel)
+    order = variables(sub)
+    pre = presolve(lib, sub, order)
+    rows = assemble(lib, sub, order, pre)
+    x = rows.x
+    mine = ca.Function("mine", [x], [ca.densify(ca.jacobian(rows.g, x))])
+    ad = ca.Function("ad", [x], [ca.densify(ca.jacobian(rows.g_plain, x))])
+    p = ca.MX.sym("p", x.numel())
+    nlp = {"x": x, "p": p, "f": ca.sumsqr(x - p), "g": rows.g}
+    jac_g = ca.nlpsol("s", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False}).get_function("nlp_jac_g")
+    free = [order[i] for i in pre.free]
+    bounds = [lib.var_bounds(v.kind, v.owner) for v in free]
+    lo, hi = np.concatenate([b[0] for b in bounds]), np.concatenate([b[1] for b in bounds])
+    lo, hi = np.maximum(lo, -3.0), np.minimum(hi, 3.0)
+    rng = np.random.default_rng(0)
+    assert rows.g.numel() == rows.lbg.size > 0
+    for _ in range(3):
+        xs = rng.uniform(lo, hi)
+        want = np.asarray(ad(xs))
+        assert np.count_nonzero(want) > 0
+        np.testing.assert_allclose(np.asarray(mine(xs)), want, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(jac_g(xs, xs)[1]), want, rtol=1e-9, atol=1e-9)

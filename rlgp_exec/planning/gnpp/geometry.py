@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -113,6 +114,14 @@ class FactorFn:
     fn: ca.Function  # inputs: the variables in slot order; output: the rows g
     lower: FloatArray
     upper: FloatArray
+
+    @cached_property
+    def jac(self) -> ca.Function:
+        """The rows' Jacobian in the inputs stacked in slot order: same inputs, output (rows, sum of the
+        inputs' sizes) (built at first use, once per factor key: ``gnpp.assembly``)."""
+        ins = [ca.SX.sym(f"v{k}", self.fn.sparsity_in(k)) for k in range(self.fn.n_in())]
+        g = self.fn(*ins)
+        return ca.Function(f"{self.fn.name()}_jac", ins, [ca.jacobian(g, ca.vertcat(*[ca.vec(v) for v in ins]))])
 
 
 def _rel_pose(r: ca.SX, upright: FloatArray) -> ca.SX:

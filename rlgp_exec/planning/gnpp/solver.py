@@ -4,8 +4,8 @@ convergence point and every factor's violation there (Def. 4.3).
 
 The NLP is ``min 1e-3 |x - x_guess|^2  s.t.  lower <= h(x) <= upper, variable bounds``; it is built
 once per *structure* (factor keys and the pattern of shared variables, time shifts ignored) and
-cached, so the many small subgraphs GNPP solves reuse their solvers (and CasADi's cached
-derivatives of each factor function).
+cached, so the many small subgraphs GNPP solves reuse their solvers. Its rows and their Jacobian are
+put together from each factor key's cached function and Jacobian (``gnpp.assembly``).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import numpy as np
 
 from rlgp_exec.casadi_call import BufferedFunction
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning.gnpp.assembly import assemble
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
@@ -314,27 +315,9 @@ class GraphSolver:
 
     def _build(self, factors: Sequence[Factor], order: list[Var]) -> _Built:
         pre = presolve(self.lib, factors, order)
-        dims = [self.lib.dim(order[i].kind, order[i].owner) for i in pre.free]
-        offs = np.cumsum([0, *dims])
-        x = ca.MX.sym("x", int(offs[-1]))
-        p = ca.MX.sym("p", int(offs[-1]))
-        slot = {}
-        for i, v in enumerate(order):
-            kind, where = pre.slot_of(i)
-            slot[v] = ca.DM(where) if kind == "const" else x[int(offs[where]) : int(offs[where + 1])]
-        gs, lo, hi, rows = [], [], [], []
-        n = 0
-        for f in factors:
-            ff = self.lib.factor(f.key)
-            gs.append(ff.fn(*[slot[v] for v in f.vars]))
-            lo.append(ff.lower)
-            hi.append(ff.upper)
-            rows.append((n, n + len(ff.lower)))
-            n += len(ff.lower)
-        g_all = ca.vertcat(*gs)
-        g = ca.vertcat(*[gs[k] for k in pre.kept])
-        lbg = np.concatenate([lo[k] for k in pre.kept]) if pre.kept else np.zeros(0)
-        ubg = np.concatenate([hi[k] for k in pre.kept]) if pre.kept else np.zeros(0)
+        nlp_rows = assemble(self.lib, factors, order, pre)
+        x, g = nlp_rows.x, nlp_rows.g
+        p = ca.MX.sym("p", x.numel())
         arms = any(order[i].kind == "q" for i in pre.free)
         search = not self.thorough and any(v.kind == "q" for v in order)
         options = ipopt_options(len(factors), search)
@@ -343,8 +326,11 @@ class GraphSolver:
         cap = (LM_MAX_FACTORS if self.lm_refute else 0) if self.thorough else self.lm_max_factors
         if nlp is not None and arms and len(factors) <= cap and not self.lib.mobile:
             lm = LevenbergMarquardt(x, p, g, REFUTE_LM_MAX_ITER if self.thorough else options["ipopt.max_iter"])
-        g_fn = BufferedFunction(ca.Function("g", [x], [g_all]))
-        return _Built(nlp, options, lm, search, g_fn, lbg, ubg, np.concatenate(lo), np.concatenate(hi), rows, pre)
+        g_fn = BufferedFunction(ca.Function("g", [x], [nlp_rows.g_all]))
+        return _Built(
+            nlp, options, lm, search, g_fn, nlp_rows.lbg, nlp_rows.ubg, nlp_rows.lo_all, nlp_rows.hi_all,
+            list(nlp_rows.rows), pre,
+        )
 
     def _observe(
         self,
