@@ -210,18 +210,22 @@ def test_small_tower_plan_is_validated():
 
 
 def test_logic_planners_agree_on_the_compiled_task(b4_setup):
-    """Fast Downward and the internal search solve the same compiled task; both plans avoid the conflict."""
+    """Fast Downward and the internal search solve the same compiled task; both plans avoid the conflict
+    and are equally short (both searches are A*: the shortest plans first, the paper's N)."""
     _, lib, task, graph, guess = b4_setup
     from rlgp_exec.planning.gnpp.planner import _logic_plan
 
     conflict, _ = find_conflict(Checker(GraphSolver(lib), guess), graph, ExtractOptions())
     seq = to_forbidden(conflict.factors)
+    lengths = set()
     for logic in Logic:
         actions, status, why = _logic_plan(task, [seq], logic, 30.0)
         assert actions is not None, (logic, status, why)
         states = task.simulate(actions)
         assert task.is_goal(states[-1]) and not seq.occurs_in(states)
         assert all(a.args[0] == "left_arm" for a in actions if a.args[1] == "b4")
+        lengths.add(len(actions))
+    assert len(lengths) == 1, lengths
 
 
 def test_variants_registered():
