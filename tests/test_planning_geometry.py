@@ -11,7 +11,7 @@ import pytest
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
-from rlgp_exec.planning.validate import Phase, validate_plan
+from rlgp_exec.planning.validate import Phase, validate_plan, validate_with_fallbacks
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
 
@@ -99,6 +99,40 @@ def test_the_replay_catches_collisions_and_unmet_goals(scene):
     assert not v.collision_free and any("table_mid" in c for c in v.collisions)
     standing = validate_plan(scene, [Phase(np.array([q0, q0]), None)])
     assert standing.collision_free and not standing.goal_met and len(standing.unmet) == 2
+
+
+def test_a_fallback_is_replayed_in_place_as_a_whole_replay_with_it_would(scene, monkeypatch):
+    """``validate_with_fallbacks`` replays a colliding phase again on its fallback, from where the phase
+    started, and goes on (one world, one pass): the same validation as replaying the plan with the
+    fallback in place; a fallback that collides too ends the replay there."""
+    import sim.world
+
+    worlds = []
+    build = sim.world.build_world
+    monkeypatch.setattr(sim.world, "build_world", lambda *a, **k: worlds.append(1) or build(*a, **k))
+    model = load_robot("hsr")
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    aside = q0.copy()
+    aside[0] += 0.3  # along the table's side
+    through_table = q0.copy()
+    through_table[1] = 0.0  # into the middle table
+    there = Phase(np.array([q0, through_table, aside]), None)
+    around = Phase(np.array([q0, aside]), None)
+    back = Phase(np.array([aside, q0]), None)
+    v, out, kept = validate_with_fallbacks(scene, [there, back], {0: around})
+    assert len(worlds) == 1
+    whole = validate_plan(scene, [around, back])
+    assert out == [around, back] and kept == set()
+    assert v.collision_free and whole.collision_free and v.unmet == whole.unmet
+    assert all(np.allclose(v.final_poses[o], whole.final_poses[o]) for o in whole.final_poses)
+    kept_there = validate_with_fallbacks(scene, [around, back], {0: there})  # no collision: kept
+    assert kept_there[1] == [around, back] and kept_there[2] == {0}
+    also_through = Phase(np.array([q0, through_table, through_table, aside]), None)
+    v2, out2, kept2 = validate_with_fallbacks(scene, [there, back], {0: also_through})
+    assert not v2.collision_free and v2.collisions[0].startswith("phase 0:") and kept2 == set()
+    assert out2 == [also_through, back]
+    with pytest.raises(ValueError, match="drives a drawer"):
+        validate_with_fallbacks(scene, [Phase(there.path, None, knob="x", drives_drawer=True)], {0: around})
 
 
 def test_the_replay_samples_each_segment_at_its_step_and_every_waypoint_once(scene):

@@ -229,9 +229,9 @@ class SequenceGeometry:
         return out, {g.phase: g for g, *_ in kept}, (sum(k[2] for k in kept), sum(k[3] for k in kept))
 
     def _replay(self, phases: list[Phase], optimised: dict[int, _Guide]):
-        """validate_plan; a collision in a level-3 phase puts that phase back to its guide (shortcut) and
-        replays again (``validate_with_fallbacks``). Returns (validation, phases, the level-3 phases
-        still in them)."""
+        """validate_plan; a collision in a level-3 phase puts that phase back to its guide (shortcut), which
+        the replay then follows from where the phase started (``validate_with_fallbacks``). Returns
+        (validation, phases, the level-3 phases still in them)."""
         # the first T rows of a level-3 phase are level 3's: its guide instead
         fallbacks = {k: replace(phases[k], path=np.vstack([g.path, phases[k].path[self.T:]]))
                      for k, g in optimised.items()}

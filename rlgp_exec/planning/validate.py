@@ -33,6 +33,8 @@ __all__ = ["Phase", "Validation", "goal_holds", "sample_path", "validate_plan", 
 
 log = logging.getLogger(__name__)
 ON_TOLERANCE = 0.01  # [m] an object "on" a surface: its bottom within this of the surface
+STEP = 0.01  # [rad or m] the replay's step per joint
+TOLERANCE = 2e-3  # [m] penetrations up to this deep are contacts, not collisions
 
 
 @dataclass(frozen=True)
@@ -113,12 +115,39 @@ def goal_holds(
     return False, f"{literal}: the replay cannot check ({literal.predicate} ...) yet"
 
 
-def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tolerance: float = 2e-3) -> Validation:
+def validate_plan(
+    scene: Scene, phases: Sequence[Phase], step: float = STEP, tolerance: float = TOLERANCE
+) -> Validation:
+    return _replay(scene, phases, {}, step, tolerance)[0]
+
+
+def validate_with_fallbacks(
+    scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase]
+) -> tuple[Validation, list[Phase], set[int]]:
+    """``validate_plan``, where a phase that collides and has a fallback (an optimised path's original:
+    level 3, GNPP's trajectories) is replayed again on its fallback, from where it started, and the replay
+    goes on; a collision on the fallback ends it. Returns (validation, the phases (fallbacks in place),
+    the indices of the phases still on their optimised paths). A fallback has its phase's ends and
+    events: the world after it is the one its phase would have left (the replay is kinematic), so one
+    pass gives what replaying the whole plan again with the fallback in place would."""
+    for k, ph in fallbacks.items():
+        if phases[k].drives_drawer or ph.drives_drawer:
+            raise ValueError(f"phase {k}: a fallback for a phase that drives a drawer (only motions have them)")
+    validation, used = _replay(scene, phases, fallbacks, STEP, TOLERANCE)
+    out = [fallbacks[k] if k in used else ph for k, ph in enumerate(phases)]
+    return validation, out, set(fallbacks) - used
+
+
+def _replay(
+    scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase], step: float, tolerance: float
+) -> tuple[Validation, set[int]]:
+    """The replay (module docstring): its validation, and the phases replayed on their fallbacks."""
     from sim.world import build_world
 
     world = build_world(scene, tags=False)
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
+    used: set[int] = set()
     held: dict[str, _Held] = {}  # two arms may hold one object each
     try:
         if scene.start.held is not None:  # in the hand from the start (a replan mid-task)
@@ -126,44 +155,17 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
             held[scene.start.held] = _Held(man.tool_frame, scene.start.T_tool_obj, 0.0, frozenset(man.links))
             robot.ignore_body(world.objects[scene.start.held])
         for k, ph in enumerate(phases):
-            tool = model.manipulator(ph.arm).tool_frame
-            fingers = frozenset(model.manipulator(ph.arm).links)
-            moving = ([ph.held] if ph.held is not None else []) + [o for _, o in ph.carried]
-            for o in moving:
-                if o not in held:
-                    raise ValueError(f"phase {k} holds {o} but nothing was grasped")
-            qs = sample_path(world, ph.path, step)
-            motion = None
-            if ph.drives_drawer and ph.knob is not None:
-                motion = DrawerMotion.start(world, ph.knob, model.fk(ph.path[0], tool))
-            for q in qs:
-                robot.set_q(q)
-                if motion is not None:
-                    violation = motion.follow(world, model.fk(q, tool))
-                    if violation is not None:
-                        collisions.append(f"phase {k}: {violation}")
-                        break
-                for o in moving:
-                    world.set_object_pose(o, model.fk(q, held[o].tool) @ held[o].T_tool_obj)
-                for c in robot.contacts(tolerance):
-                    name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
-                    if ph.grasp is not None and name == ph.grasp and c.link in fingers:
-                        continue  # the fingers close round the object they are about to grasp
-                    if ph.knob is not None and name == ph.knob and c.other_link == "0" and c.link in fingers:
-                        continue  # the fingers round the knob (link 0 of a cabinet: its drawer)
-                    collisions.append(f"phase {k}: robot {c.link} ~ {name}")
-                for o in moving:
-                    for c in p.getContactPoints(bodyA=world.objects[o], physicsClientId=client):
-                        if c[2] != robot.id and c[8] < held[o].rest - tolerance:
-                            collisions.append(f"phase {k}: held {o} ~ {world.body_name(c[2])}")
-                        elif c[2] == robot.id and c[8] < -tolerance:
-                            link = robot.link_name.get(c[4], str(c[4]))
-                            if link not in held[o].hand:
-                                collisions.append(f"phase {k}: held {o} ~ robot {link}")
-                if collisions:
-                    break
+            collisions = _follow(world, k, ph, held, step, tolerance)
+            if collisions and k in fallbacks:
+                log.info("phase %d collides in the replay (%s): its path before optimisation instead",
+                         k, collisions[0])
+                used.add(k)
+                ph = fallbacks[k]
+                collisions = _follow(world, k, ph, held, step, tolerance)
             if collisions:
                 break
+            tool = model.manipulator(ph.arm).tool_frame
+            fingers = frozenset(model.manipulator(ph.arm).links)
             q_end = ph.path[-1]
             if ph.grasp is not None:
                 held_T = np.linalg.inv(model.fk(q_end, tool)) @ world.object_pose(ph.grasp)
@@ -194,28 +196,53 @@ def validate_plan(scene: Scene, phases: Sequence[Phase], step: float = 0.01, tol
         ok, why = goal_holds(scene, lit, poses, openings)
         if not ok:
             unmet.append(why)
-    return Validation(
+    validation = Validation(
         not collisions, not unmet and not collisions, tuple(dict.fromkeys(collisions)), tuple(unmet), poses, openings
     )
+    return validation, used
 
 
-def validate_with_fallbacks(
-    scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase]
-) -> tuple[Validation, list[Phase], set[int]]:
-    """``validate_plan``; while the replay collides in a phase that has a fallback (an optimised path's
-    original: level 3, GNPP's trajectories), that phase goes back to its fallback and the plan is
-    replayed again, until it passes or collides elsewhere. Returns (validation, the phases, the indices
-    of the phases still on their optimised paths)."""
-    out, kept = list(phases), set(fallbacks)
-    while True:
-        validation = validate_plan(scene, out)
-        hit = sorted(k for k in kept if any(c.startswith(f"phase {k}:") for c in validation.collisions))
-        if validation.ok or not hit:
-            return validation, out, kept
-        kept.discard(hit[0])
-        out[hit[0]] = fallbacks[hit[0]]
-        log.info("phase %d collides in the replay (%s): its path before optimisation instead",
-                 hit[0], validation.collisions[0])
+def _follow(world, k: int, ph: Phase, held: dict[str, _Held], step: float, tolerance: float) -> list[str]:
+    """Phase ``k``'s motion, checked at ``step``: its collisions (the motion stops at the first
+    configuration that has any). Moves the robot, the objects in ``held`` and a driven drawer; nothing else."""
+    robot, model, client = world.robot, world.robot_model, world.client
+    tool = model.manipulator(ph.arm).tool_frame
+    fingers = frozenset(model.manipulator(ph.arm).links)
+    moving = ([ph.held] if ph.held is not None else []) + [o for _, o in ph.carried]
+    for o in moving:
+        if o not in held:
+            raise ValueError(f"phase {k} holds {o} but nothing was grasped")
+    collisions: list[str] = []
+    motion = None
+    if ph.drives_drawer and ph.knob is not None:
+        motion = DrawerMotion.start(world, ph.knob, model.fk(ph.path[0], tool))
+    for q in sample_path(world, ph.path, step):
+        robot.set_q(q)
+        if motion is not None:
+            violation = motion.follow(world, model.fk(q, tool))
+            if violation is not None:
+                collisions.append(f"phase {k}: {violation}")
+                break
+        for o in moving:
+            world.set_object_pose(o, model.fk(q, held[o].tool) @ held[o].T_tool_obj)
+        for c in robot.contacts(tolerance):
+            name = world.body_name(c.other_body) if c.other_body != robot.id else c.other_link
+            if ph.grasp is not None and name == ph.grasp and c.link in fingers:
+                continue  # the fingers close round the object they are about to grasp
+            if ph.knob is not None and name == ph.knob and c.other_link == "0" and c.link in fingers:
+                continue  # the fingers round the knob (link 0 of a cabinet: its drawer)
+            collisions.append(f"phase {k}: robot {c.link} ~ {name}")
+        for o in moving:
+            for c in p.getContactPoints(bodyA=world.objects[o], physicsClientId=client):
+                if c[2] != robot.id and c[8] < held[o].rest - tolerance:
+                    collisions.append(f"phase {k}: held {o} ~ {world.body_name(c[2])}")
+                elif c[2] == robot.id and c[8] < -tolerance:
+                    link = robot.link_name.get(c[4], str(c[4]))
+                    if link not in held[o].hand:
+                        collisions.append(f"phase {k}: held {o} ~ robot {link}")
+        if collisions:
+            break
+    return collisions
 
 
 def sample_path(world, path: FloatArray, step: float) -> FloatArray:
