@@ -10,6 +10,7 @@ import pytest
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.bench import run_planner_bench
+from rlgp_exec.planning.sequence import STAGES
 
 SORTING = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
 
@@ -22,6 +23,11 @@ def test_bench_runs_seeds_in_worker_processes_and_plots_base_paths(tmp_path):
         assert r["success"], r["reason"]
         assert r["collision_free"] and r["goal_met"] and r["n_steps"] == 4
     assert out["summary"]["rlgp"]["success_rate"] == 1.0 and out["workers"] == 2
+    for r in out["runs"]:  # where the time went: every stage of the geometric layer, within the whole
+        assert list(r["stages_s"]) == list(STAGES) and min(r["stages_s"].values()) > 0.0
+        assert sum(r["stages_s"].values()) < r["planning_time_s"]
+    stages = out["summary"]["rlgp"]["stages_s_median"]
+    assert list(stages) == [*STAGES, "other"] and stages["other"] > 0.0
     assert png.stat().st_size > 10_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -173,7 +173,7 @@ def run_planner_bench(
             _report(results[-1][0], k + 1, len(jobs))
     sweep_s = time.perf_counter() - t0
     runs = [r for r, _ in results]
-    summary = {}
+    summary: dict[str, dict[str, Any]] = {}
     for name in planners:
         rs = [r for r in runs if r["planner"] == name]
         ok = [r for r in rs if r["success"]]
@@ -196,6 +196,11 @@ def run_planner_bench(
                     "l3_fallbacks_total": sum(s["fallbacks"] for s, _ in l3),
                 }
             )
+        staged = [r for r in ok if r.get("stages_s")]
+        if staged:  # R-LGP: where the solved runs' time went, stage by stage; "other": search, grounding, checks
+            stages = {k: _median([r["stages_s"][k] for r in staged]) for k in staged[0]["stages_s"]}
+            stages["other"] = _median([r["planning_time_s"] - sum(r["stages_s"].values()) for r in staged])
+            summary[name]["stages_s_median"] = stages
         counted = [r["counters"] for r in rs if r.get("counters")]
         if counted:  # planner-specific counters (GNPP: Table I's N0, N, NLPs), medians over the runs
             ok_counted = [r["counters"] for r in ok if r.get("counters")]

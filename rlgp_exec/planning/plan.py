@@ -41,6 +41,8 @@ class Plan:
     reason: str
     counters: dict = field(default_factory=dict)  # planner-specific counts (GNPP: n0, n, nlp, ...)
     level3: Level3Stats | None = None  # R-LGP's full-path optimisation (None: not run)
+    #: R-LGP: wall time [s] per stage of the geometric layer (``sequence.STAGES``), summed over the candidates
+    stages: dict[str, float] = field(default_factory=dict)
 
     @property
     def base_path_length_m(self) -> float:
@@ -66,4 +68,5 @@ class Plan:
             "reason": self.reason,
             **({"counters": dict(self.counters)} if self.counters else {}),
             **({"level3": asdict(self.level3)} if self.level3 is not None else {}),
+            **({"stages_s": dict(self.stages)} if self.stages else {}),
         }

@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -33,21 +36,31 @@ from rlgp_exec.planning.nlp.hand import (
     mesh_finger_spheres,
     other_arm_obstacles,
 )
-from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, solve_keyframes
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, KeyframeResult, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
 from rlgp_exec.planning.transport import APPROACH, Transport
-from rlgp_exec.planning.validate import Phase, validate_with_fallbacks
+from rlgp_exec.planning.validate import Phase, Validation, validate_with_fallbacks
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import Box, fixture_boxes, object_box
 
-__all__ = ["APPROACH", "SequenceGeometry"]
+__all__ = ["APPROACH", "STAGES", "SequenceGeometry"]
 
 
 log = logging.getLogger(__name__)
+# where a plan's time goes (``Plan.stages``): this object's set-up (robot, graph, PyBullet world, IK), the
+# keyframe NLPs (level 2), the guided paths (approaches, graph queries, transports), level 3, the replay
+STAGES = ("setup", "keyframes", "guided", "level3", "replay")
+
+
+class _NoLayout(NamedTuple):
+    """Why a candidate's phases could not be laid out, and those laid out before."""
+
+    reason: str
+    phases: tuple[Phase, ...]
 
 
 @dataclass(frozen=True)
@@ -79,6 +92,7 @@ class SequenceGeometry:
         """``memory``: where the reachability graph comes from and stays (with what queries teach it)
         for the next call; without one, the cached graph is loaded for this call only. ``level3``:
         optimise the guided paths (``nlp.path``, ``T`` waypoints per segment)."""
+        t0 = time.perf_counter()
         self.scene, self.seed = scene, seed
         self.model = load_robot(scene.robot.name)
         self.q0 = nominal_q(self.model, scene)
@@ -104,6 +118,16 @@ class SequenceGeometry:
         self.level3, self.T = level3, T
         self.l3 = Level3Stats()  # totals over this object's candidates
         self._nlp_cache: dict = {}  # the keyframe NLP of the sequence under way (its tilts share it)
+        self.stages = dict.fromkeys(STAGES, 0.0)  # [s] summed over this object's calls
+        self.stages["setup"] = time.perf_counter() - t0
+
+    @contextmanager
+    def _stage(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.stages[name] += time.perf_counter() - t0
 
     def close(self) -> None:
         self.checker.close()
@@ -261,7 +285,55 @@ class SequenceGeometry:
     ) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
-        kf = solve_keyframes(
+        with self._stage("keyframes"):
+            kf = self._keyframes(actions, tilt, deadline)
+
+        def result(phases: tuple[Phase, ...], validation: Validation | None, reason: str) -> Plan:
+            return Plan(
+                validation is not None and validation.ok,
+                planner,
+                names,
+                kf.keyframes if kf.ok else np.zeros((0, self.model.nq)),
+                phases,
+                time.perf_counter() - t0,
+                self.n_nlp,
+                nodes_expanded,
+                validation,
+                reason,
+                level3=self.l3 if self.level3 else None,
+                stages=dict(self.stages),
+            )
+
+        def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
+            self.rg.drawers({c: 0.0 for c in self.drawers})
+            self.checker.set_objects([])
+            return result(phases, None, reason)
+
+        if not kf.ok:
+            return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
+        with self._stage("guided"):
+            laid = self._lay_out(actions, kf)
+        if isinstance(laid, _NoLayout):
+            return fail(*laid)
+        phases, guides = laid
+        optimised: dict[int, _Guide] = {}
+        costs = None
+        if self.level3 and guides:
+            with self._stage("level3"):
+                phases, optimised, costs = self._optimise(phases, guides)
+        with self._stage("replay"):
+            validation, phases, optimised = self._replay(phases, optimised)
+        if validation.ok and optimised:
+            self.l3 = replace(self.l3, used=self.l3.used + 1)
+        if validation.ok:  # the returned plan's level-3 costs (None when a segment fell back)
+            whole = costs if len(optimised) == len(guides) else None
+            self.l3 = replace(self.l3, acc_cost=whole[0] if whole else None,
+                              warm_acc_cost=whole[1] if whole else None)
+        reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
+        return result(tuple(phases), validation, reason)
+
+    def _keyframes(self, actions: list[Action], tilt: float, deadline: float | None) -> KeyframeResult:
+        return solve_keyframes(
             self.model,
             self.scene,
             self.q0,
@@ -280,27 +352,10 @@ class SequenceGeometry:
             mesh_hand=self.mesh_hand,
             inner=self.inner,
         )
-        empty = np.zeros((0, self.model.nq))
 
-        def fail(reason: str, phases: tuple[Phase, ...] = ()) -> Plan:
-            self.rg.drawers({c: 0.0 for c in self.drawers})
-            self.checker.set_objects([])
-            return Plan(
-                False,
-                planner,
-                names,
-                kf.keyframes if kf.ok else empty,
-                phases,
-                time.perf_counter() - t0,
-                self.n_nlp,
-                nodes_expanded,
-                None,
-                reason,
-                level3=self.l3 if self.level3 else None,
-            )
-
-        if not kf.ok:
-            return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
+    def _lay_out(self, actions: list[Action], kf: KeyframeResult) -> tuple[list[Phase], list[_Guide]] | _NoLayout:
+        """The phases through the keyframes (vertical approaches and leaves, the drawer motions) and the
+        guided paths between them, or why there are none (with the phases laid out so far)."""
         phases: list[Phase] = []
         guides: list[_Guide] = []
         start = self.scene.start
@@ -331,17 +386,17 @@ class SequenceGeometry:
             if a.name == "take_knob":  # approached along the drawer's axis
                 q_pre = self._along_axis(q_k, a.obj, APPROACH)
                 if self.checker(q_pre):
-                    return fail(f"no approach configuration {APPROACH:.2f} m out from {a}", tuple(phases))
+                    return _NoLayout(f"no approach configuration {APPROACH:.2f} m out from {a}", tuple(phases))
                 up: list[FloatArray] = []
             else:
                 up_or_none = self.moves.above(q_k)
                 if up_or_none is None:
-                    return fail(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
+                    return _NoLayout(f"no approach configuration {APPROACH:.2f} m above {a}", tuple(phases))
                 up = up_or_none
                 q_pre = up[-1]
             guided = self._guided(q_prev, q_pre, held, T_tool_obj)
             if isinstance(guided, str):
-                return fail(f"no guided path to {a}: {guided}", tuple(phases))
+                return _NoLayout(f"no guided path to {a}: {guided}", tuple(phases))
             standing = tuple(replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held)
             guides.append(_Guide(len(phases), guided, dict(openings), standing, held, T_tool_obj))
             down = np.vstack([guided, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
@@ -360,28 +415,5 @@ class SequenceGeometry:
             q_prev = q_pre
         self.rg.drawers({c: 0.0 for c in self.drawers})
         self.checker.set_objects([])
-        optimised: dict[int, _Guide] = {}
-        costs = None
-        if self.level3 and guides:
-            phases, optimised, costs = self._optimise(phases, guides)
-        validation, phases, optimised = self._replay(phases, optimised)
-        if validation.ok and optimised:
-            self.l3 = replace(self.l3, used=self.l3.used + 1)
-        if validation.ok:  # the returned plan's level-3 costs (None when a segment fell back)
-            whole = costs if len(optimised) == len(guides) else None
-            self.l3 = replace(self.l3, acc_cost=whole[0] if whole else None,
-                              warm_acc_cost=whole[1] if whole else None)
-        reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
-        return Plan(
-            validation.ok,
-            planner,
-            names,
-            kf.keyframes,
-            tuple(phases),
-            time.perf_counter() - t0,
-            self.n_nlp,
-            nodes_expanded,
-            validation,
-            reason,
-            level3=self.l3 if self.level3 else None,
-        )
+        return phases, guides
+
