@@ -193,6 +193,28 @@ def test_a_node_cut_off_by_hidden_edges_is_bridged_back(wall):
     assert new and all(g.G.edges[a, n]["checked"] for n in new)
 
 
+def test_a_bridge_that_finds_nothing_gives_up_after_its_ik_budget(wall, monkeypatch):
+    """Every configuration colliding (the held object's world, say), a bridge's task-space stage stops
+    after BRIDGE_IK_SOLVES IK solves, for the query's OMPL fallback: uncapped it ran ~500 (8 s)."""
+    import rlgp_exec.reach.query as query
+
+    planner = _fresh_planner(wall)
+    g = planner.g
+    a = int(g.alive[7])
+    b = max(g.alive, key=lambda i: float(np.linalg.norm(g.X[i] - g.X[a])))
+    solves = []
+    solve = planner.ik.solve
+    monkeypatch.setattr(planner.ik, "solve", lambda *args, **kw: solves.append(1) or solve(*args, **kw))
+    monkeypatch.setattr(planner, "in_collision", lambda q: True)
+    cap = query.BRIDGE_IK_SOLVES
+    assert not planner._bridge(a, b)
+    assert len(solves) == cap
+    monkeypatch.setattr(query, "BRIDGE_IK_SOLVES", 3 * cap)  # the budget, not the samples, ended it
+    solves.clear()
+    assert not planner._bridge(a, b)
+    assert len(solves) == 3 * cap
+
+
 def test_a_configured_end_joins_its_joint_space_neighbours(wall):
     """An end given with its configuration (the robot's, a keyframe's) is connected to the nodes nearest
     in joint space as well as in task space: a posture next to a node's, with the hand moved away from

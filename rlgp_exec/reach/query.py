@@ -40,7 +40,11 @@ MAX_REPLANS = 60  # replans after a path's edges were swept
 # replans in all, those after a probe only included (~5 ms each: a shortest path and a few distance
 # queries); round a table the task-space neighbours across it are cut one or two per replan
 MAX_PROBED = 400
-MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback (each costs up to ~50 IK solves)
+MAX_BRIDGES = 4  # component bridgings per query before the OMPL fallback
+# IK solves a bridge's task-space stage may spend (~17 ms each) before it gives up: without a cap, bridges
+# round table_clearing_hsr's cabinet with a cup in the hand spent up to ~500 (8.2 s) and failed, then OMPL's
+# fallback found the path in 0.3-0.4 s (seed 9: 12.2 s planning)
+BRIDGE_IK_SOLVES = 50
 # configurations drawn per sigma round a bridge's or an enhancement's centre in joint space, before the
 # task-space samples (IK): ~1 ms each (kinematics and a collision check) against ~20 ms per IK solve
 Q_TRIES = 6
@@ -228,7 +232,9 @@ class ReachabilityPlanner:
             out.append(z)
         return out
 
-    def _solve_node(self, x: FloatArray) -> tuple[FloatArray, float] | None:
+    def _solve_node(self, x: FloatArray, budget: list[int] | None = None) -> tuple[FloatArray, float] | None:
+        """A collision-free configuration (q, cost) putting the tool at x, by IK from the nearest nodes and
+        four base headings; ``budget``: [IK solves left] (spent here; none left: None)."""
         if self.ik.inside_fixture(x) is not None:
             return None
         near = self.g.nearest(x, 1)
@@ -238,6 +244,10 @@ class ReachabilityPlanner:
         a0 = self.rng.uniform(-math.pi, math.pi)
         inits += [self.ik.guess(x, a0 + k * math.pi / 2) for k in range(4)]  # approach from four sides
         for z0 in inits:
+            if budget is not None:
+                if budget[0] <= 0:
+                    return None
+                budget[0] -= 1
             res = self.ik.solve(x, z0)
             if res.ok and not self.in_collision(res.q):
                 return res.q, res.cost
@@ -268,10 +278,12 @@ class ReachabilityPlanner:
             return None
         return node[0], z, node[1]
 
-    def _candidates(self, x: FloatArray, q: FloatArray, tries: int, stage: str = "both"):
+    def _candidates(
+        self, x: FloatArray, q: FloatArray, tries: int, stage: str = "both", budget: list[int] | None = None
+    ):
         """New nodes (x, q, c) round a point: first drawn in joint space round q (``_sample_q``,
         Q_TRIES per sigma; stage "q"), then task-space samples round x, each by IK (``tries`` per
-        sigma; stage "ik")."""
+        sigma; stage "ik"; ``budget``: [IK solves left], shared by the caller's calls)."""
         if stage in ("q", "both"):
             for sigma in ENHANCE_SIGMAS:
                 for _ in range(Q_TRIES):
@@ -281,8 +293,10 @@ class ReachabilityPlanner:
         if stage in ("ik", "both"):
             for sigma in ENHANCE_SIGMAS:
                 for _ in range(tries):
+                    if budget is not None and budget[0] <= 0:
+                        return
                     xs = x + self.rng.normal(0.0, sigma, 3)
-                    node = self._solve_node(xs)
+                    node = self._solve_node(xs, budget)
                     if node is not None:
                         yield xs, *node
 
@@ -338,11 +352,12 @@ class ReachabilityPlanner:
         d, j = cKDTree(self.g.X[B]).query(self.g.X[A])
         in_task = [(int(A[k]), int(B[j[k]])) for k in np.argsort(d, kind="stable")[:pairs]]
         closest = list(dict.fromkeys(self._closest_pairs(A, B, pairs) + in_task))
+        budget = [BRIDGE_IK_SOLVES]
         for stage in ("q", "ik"):
             for u, v in closest:
                 mid = 0.5 * (self.g.X[u] + self.g.X[v])
                 q_mid = self.g.Q[u] + 0.5 * self.g.limits.difference(self.g.Q[v], self.g.Q[u])
-                for xs, qs, cs in self._candidates(mid, q_mid, 2, stage):
+                for xs, qs, cs in self._candidates(mid, q_mid, 2, stage, budget):
                     n = self.g.add_node(xs, qs, cs)
                     self.g.add_edge(u, n)
                     self.g.add_edge(n, v)
