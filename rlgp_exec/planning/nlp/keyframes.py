@@ -228,12 +228,13 @@ def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
 
 
 def _constraints(rows: Rows) -> ca.SX:
-    """The rows' g as one column, common subexpressions merged (``ca.cse``): a keyframe's forward
-    kinematics and each sphere's position are built once per box they are kept from, and IPOPT's
-    derivatives of the merged graph cost less to build and to evaluate (pick_place_pr2: nlpsol 0.48 ->
-    0.27 s, ~15 % per iteration; table_clearing_hsr: 4.1 -> 2.6 s, ~30 % per iteration). The same
-    function: values agree to rounding (IPOPT's iterates may then part after many steps)."""
-    return ca.cse(ca.vertcat(*rows.g)) if rows.g else ca.SX(0, 1)
+    """The rows' g as one column. Not merged by ``ca.cse`` any more: that paid while IPOPT had the exact
+    Hessian (nlpsol 0.48 -> 0.27 s on pick_place_pr2), but with the curvature-free rows (``_hess_lag``)
+    the merge cost more than it saved: cse alone took 0.30 s of table_clearing_hsr's 0.65 s build. Side by
+    side without it (stop 31), keyframe stage median: table_clearing_hsr 10 seeds 1.40 -> 1.18 s (planning
+    2.32 -> 2.14 s), pick_place_pr2 12 seeds 0.52 -> 0.48 s, sorting_pr2 12 seeds 0.34 -> 0.31 s; every run
+    solved, the base paths the same but four (two shorter by 0.2 and 3.0 m, two longer by 0.1 and 0.7 m)."""
+    return ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)
 
 
 def _hess_lag(x: ca.SX, p: ca.SX, f: ca.SX, g: ca.SX, labels: list[str]) -> ca.Function:
