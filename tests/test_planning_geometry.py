@@ -500,7 +500,8 @@ def test_the_keyframe_hessian_is_the_lagrangians_without_the_clearance_rows_curv
     """IPOPT's Hessian of the keyframe NLP is exact for the objective and the task rows (grasp,
     placement, pose variables) and leaves out only the clearance and footprint rows' curvature: it
     equals the exact Hessian of the Lagrangian with those rows' multipliers zeroed, at random points,
-    and those rows do have curvature (the exact Hessian with all multipliers differs)."""
+    and those rows do have curvature (the exact Hessian with all multipliers differs). Its Jacobian
+    (``_jacobian``, rows differentiated in groups) is CasADi's of the whole, entry for entry."""
     from rlgp_exec.planning.drawers import drawer_views
     from rlgp_exec.planning.nlp.keyframes import CURVATURE_FREE, _build
     from rlgp_exec.planning.sequence import SequenceGeometry
@@ -518,6 +519,7 @@ def test_the_keyframe_hessian_is_the_lagrangians_without_the_clearance_rows_curv
     x, p, lam = ca.SX.sym("x", nx), ca.SX.sym("p", npar), ca.SX.sym("lam", ng)
     f, g = S.get_function("nlp_f")(x, p), S.get_function("nlp_g")(x, p)
     exact = ca.Function("H", [x, p, lam], [ca.triu(ca.hessian(2.0 * f + ca.dot(lam, g), x)[0])])
+    jac = ca.Function("J", [x, p], [ca.jacobian(g, x)])
     free = np.array([label.endswith(CURVATURE_FREE) for label in prob.labels])
     assert 0 < free.sum() < ng
     rng = np.random.default_rng(3)
@@ -528,6 +530,9 @@ def test_the_keyframe_hessian_is_the_lagrangians_without_the_clearance_rows_curv
         H = np.asarray(ca.densify(S.get_function("nlp_hess_l")(z, pv, 2.0, lv)))
         assert np.allclose(H, np.asarray(ca.densify(exact(z, pv, np.where(free, 0.0, lv)))), atol=1e-9)
         differs |= not np.allclose(H, np.asarray(ca.densify(exact(z, pv, lv))), atol=1e-6)
+        J = S.get_function("nlp_jac_g")(z, pv)[1]
+        assert J.sparsity() == jac.sparsity_out(0)
+        assert np.allclose(np.asarray(ca.densify(J)), np.asarray(ca.densify(jac(z, pv))), rtol=1e-12, atol=1e-12)
     assert differs
 
 

@@ -237,6 +237,23 @@ def _constraints(rows: Rows) -> ca.SX:
     return ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)
 
 
+def _jacobian(g: ca.SX, x: ca.SX, n: int) -> ca.SX:
+    """dg/dx, the rows differentiated in groups by how many variables they read (at most ``n``, one
+    keyframe's; at most 2 n; more: the rows that also read another keyframe or a pose variable). CasADi's
+    forward sweeps colour the columns of all the rows at once, as many as the widest row reads (32 on
+    pick_place_pr2, for 309 of its 393 rows that read at most 10): grouped, the narrow rows take 10.
+    pick_place_pr2 seed 1: 112 -> 72 ms; the same entries."""
+    if g.numel() == 0:
+        return ca.SX(0, x.numel())
+    width = np.diff(ca.jacobian_sparsity(g, x).T.colind())  # per row: the variables it reads
+    rows = ca.vertsplit(g)
+    groups = [np.flatnonzero(width <= n), np.flatnonzero((width > n) & (width <= 2 * n)), np.flatnonzero(width > 2 * n)]
+    groups = [grp for grp in groups if grp.size]
+    stacked = ca.vertcat(*(ca.jacobian(ca.vertcat(*(rows[i] for i in grp)), x) for grp in groups))
+    order = np.argsort(np.concatenate(groups), kind="stable")  # stacked row of each row of g
+    return stacked[order.tolist(), :]
+
+
 def _hess_lag(x: ca.SX, p: ca.SX, f: ca.SX, g: ca.SX, labels: list[str]) -> ca.Function:
     """IPOPT's Hessian of the Lagrangian, (x, p, lam_f, lam_g) -> its upper triangle, with the curvature
     of the objective and of the task rows (grasps, placements, pose variables, drawers) but not of
@@ -473,6 +490,7 @@ def _build(
     opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
                             "ipopt.tol": 1e-7, "ipopt.max_resto_iter": MAX_RESTO_ITER}
     opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
+    opts["jac_g"] = ca.Function("jac_g", [x, pp], [g_all, _jacobian(g_all, x, n)])
     solver = ca.nlpsol("keyframes", "ipopt", nlp, {**opts, **LEAN})
     n_aux = 12 * len(aux)
     lo, hi = _keyframe_bounds(model, ik)
