@@ -250,3 +250,20 @@ def test_level3_processes_come_from_the_environment(monkeypatch):
     monkeypatch.setenv(level3.PROCESSES_ENV, "two")
     with pytest.raises(RlgpError, match="RLGP_EXEC_L3_PROCESSES='two'"):
         level3.default_workers()
+
+
+@pytest.mark.parametrize(("n", "m", "blocks"), [(11, 10, 1), (10, 1, 2), (4, 3, 3)])
+def test_the_objective_assembled_from_its_operators_is_the_acceleration_cost(n, m, blocks):
+    """``_acc_quadratic`` (0.5 x' H x + b' x + c, from the second differences): ``_acc_cost`` of every
+    block's path, the fixed ends included, at random waypoints; H is its Hessian, constant."""
+    rng = np.random.default_rng(n + m + blocks)
+    w = np.r_[np.full(3, W_BASE), np.ones(n - 3)]
+    ends = [(rng.normal(size=n), rng.normal(size=n)) for _ in range(blocks)]
+    H, b, c = level3._acc_quadratic(w, m, ends)
+    H = np.asarray(ca.densify(H))
+    for _ in range(3):
+        x = rng.normal(size=n * m * blocks)
+        paths = [np.c_[z0, x[k * n * m:(k + 1) * n * m].reshape(m, n).T, zT] for k, (z0, zT) in enumerate(ends)]
+        want = sum(level3._acc_cost(Z, w) for Z in paths)
+        assert 0.5 * x @ H @ x + b @ x + c == pytest.approx(want, rel=1e-12)
+    assert np.allclose(H, H.T) and np.all(np.linalg.eigvalsh(H) > 0.0)  # convex: a straight path is its least

@@ -43,13 +43,14 @@ worse than the guide.
 from __future__ import annotations
 
 import enum
+import functools
 import itertools
 import logging
 import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -192,16 +193,42 @@ def resample(z: FloatArray, vmax: FloatArray, T: int) -> tuple[FloatArray, float
     return out, float(s[-1] / (T - 1))
 
 
-@overload
-def _acc_cost(Z: FloatArray, w: FloatArray) -> float: ...
-@overload
-def _acc_cost(Z: ca.MX, w: FloatArray) -> ca.MX: ...
-def _acc_cost(Z: ca.MX | FloatArray, w: FloatArray) -> ca.MX | float:
+def _acc_cost(Z: FloatArray, w: FloatArray) -> float:
     """Σ_t Σ_j w_j (z_{t+1} - 2 z_t + z_{t-1})_j^2 of a path Z (n, T)."""
     acc = Z[:, 2:] - 2 * Z[:, 1:-1] + Z[:, :-2]
-    if isinstance(acc, np.ndarray):
-        return float(np.sum(w[:, None] * acc**2))
-    return ca.sum2(ca.sum1(ca.DM(w) * acc**2)) if acc.shape[1] else ca.MX(0)
+    return float(np.sum(w[:, None] * acc**2))
+
+
+@functools.lru_cache(maxsize=16)
+def _acc_operators(w: tuple[float, ...], m: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For a block of m inner waypoints (n,) between fixed ends, time-major: L (n m, n m), the second
+    differences of the inner waypoints (the accelerations are L x + e, e the ends' part), the weights
+    (n m,) of ``_acc_cost`` at every step, and its Hessian 2 L' diag(weights) L; read-only."""
+    D2 = np.diag(np.full(m, -2.0)) + np.diag(np.ones(m - 1), 1) + np.diag(np.ones(m - 1), -1)
+    L = np.kron(D2, np.eye(len(w)))
+    weights = np.tile(np.asarray(w, float), m)
+    H = 2.0 * L.T @ (weights[:, None] * L)
+    for a in (L, weights, H):
+        a.flags.writeable = False
+    return L, weights, H
+
+
+def _acc_quadratic(
+    w: FloatArray, m: int, ends: Sequence[tuple[FloatArray, FloatArray]]
+) -> tuple[ca.DM, FloatArray, float]:
+    """The summed ``_acc_cost`` of blocks of m inner waypoints between fixed ends (z_0, z_T) (n,) each, as
+    0.5 x' H x + b' x + c in x = the blocks' inner waypoints (block by block, time-major): (H (sparse),
+    b, c), from the accelerations L x + e (e: z_0 at the first step, z_T at the last)."""
+    n = len(w)
+    L, weights, Hb = _acc_operators(tuple(float(v) for v in w), m)
+    b, c = [], 0.0
+    for z0, zT in ends:
+        e = np.zeros(n * m)
+        e[:n] += z0
+        e[-n:] += zT
+        b.append(2.0 * L.T @ (weights * e))
+        c += float(e @ (weights * e))
+    return ca.sparsify(ca.DM(np.kron(np.eye(len(ends)), Hb))), np.concatenate(b), c
 
 
 def _held_spheres(held: tuple[FloatArray, FloatArray] | None) -> list[tuple[FloatArray, float]]:
@@ -319,6 +346,7 @@ def _straight(Z: FloatArray) -> bool:
     return bool(np.all(np.abs(acc) <= 1e-9))
 
 
+@functools.lru_cache(maxsize=16)
 def _selectors(n: int, m: int) -> tuple[ca.DM, ca.DM]:
     """Constant sparse maps from a segment's inner waypoints x = vec(Z_inner) (n m,) to its m + 1 step
     midpoints (0.5 I on both neighbours; the fixed ends add a constant) and to its m + 1 steps
@@ -346,7 +374,6 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
     n, m = len(idx), T - 2
     S, D = _selectors(n, m)
     X, G, J, lbg, ubg, x0, lbx, ubx = [], [], [], [], [], [], [], []
-    f = ca.MX(0)
     for b in blocks:
         Zi = ca.MX.sym("Z", n, m)
         X.append(ca.vec(Zi))
@@ -369,18 +396,13 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
         x0.append(b.Zw[1:-1].reshape(-1))
         lbx.append(np.tile(b.lo, m))
         ubx.append(np.tile(b.hi, m))
-        f = f + _acc_cost(Zfull, w)
     x, g = ca.vertcat(*X), ca.vertcat(*G)
     jac = ca.diagcat(*J)
     # the objective is quadratic: 0.5 x' H_f x + b' x + c, its Hessian a constant; IPOPT gets it in that
     # form (its gradient through the MX graph of the accelerations took ~2.4 ms per evaluation, ~15 % of
-    # a pick_place_pr2 solve; the values agree to rounding)
-    xs = ca.SX.sym("x", x.numel())
-    f_x = ca.Function("f", [x], [f]).expand()
-    H_f = ca.sparsify(ca.evalf(ca.hessian(f_x(xs), xs)[0]))
-    zero = np.zeros(x.numel())
-    b_f = ca.Function("grad_f", [xs], [ca.gradient(f_x(xs), xs)])(zero)
-    f = 0.5 * ca.bilin(ca.MX(H_f), x, x) + ca.dot(ca.MX(b_f), x) + float(f_x(zero))
+    # a pick_place_pr2 solve), assembled from its operators (``_acc_quadratic``), not differentiated
+    H_f, b_f, c_f = _acc_quadratic(w, m, [(b.Zw[0], b.Zw[-1]) for b in blocks])
+    f = 0.5 * ca.bilin(ca.MX(H_f), x, x) + ca.dot(ca.MX(ca.DM(b_f)), x) + c_f
     lam_f, p, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("p", 0), ca.MX.sym("lam_g", g.numel())
     hess_lag = ca.Function("hess_lag", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.MX(H_f))])
     jac_g = ca.Function("jac_g", [x, p], [g, jac])
