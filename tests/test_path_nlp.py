@@ -125,10 +125,11 @@ def _blocks(model, segments, T, kw):
     manip = model.manipulator(None)
     idx = np.array([*model.group("base"), *model.group(manip.group)])
     w = np.r_[np.full(3, W_BASE), np.ones(len(idx) - 3)]
-    fn, lower = level3.self_rows_function(model, manip.name, (), segments[0].warm[0], kw["self_spheres"], kw["body"])
+    self_rows = level3.self_rows_function(model, kw["self_spheres"], kw["body"])
     z = ca.SX.sym("z", len(idx))
-    rs = RobotSymbols(model, segments[0].warm[0], manip.name, z)
-    return [level3._block(model, rs, (fn(z), lower), idx, seg, T, kw["hand"]) for seg in segments], idx, w
+    rs = RobotSymbols(model, segments[0].warm[0], manip.name, z, frames=self_rows.frames)
+    rows = (self_rows.rows(rs), self_rows.lower)
+    return [level3._block(model, rs, rows, idx, seg, T, kw["hand"]) for seg in segments], idx, w
 
 
 def test_level3_objective_is_the_acceleration_cost_at_any_point(planned):

@@ -639,9 +639,9 @@ def test_approach_rows_bound_the_tilt_with_gradients_at_every_active_row(max_til
 
 
 def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear():
-    """``self_rows_function`` gives the rows ``self_clear`` builds (values at random configurations), the
-    same function again for arguments with equal contents (whatever the base and arm in q_fixed), another
-    for another body, and keeps only the latest SELF_ROWS_KEPT per model."""
+    """``self_rows_function`` gives the rows ``self_clear`` builds (values at random configurations, read on
+    a ``RobotSymbols``' own forward kinematics), the same function again for arguments with equal
+    contents, another for another body, and keeps only the latest SELF_ROWS_KEPT per model."""
     from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
     from rlgp_exec.planning.nlp.hand import _SELF_ROWS, SELF_ROWS_KEPT, self_clear, self_rows_function
     from rlgp_exec.planning.sequence import SequenceGeometry
@@ -650,25 +650,26 @@ def test_self_rows_are_built_once_per_model_and_arguments_and_equal_self_clear()
     geo = SequenceGeometry(scene, seed=0)
     geo.close()
     spheres, body = geo.self_spheres, geo.body
-    fn, lower = self_rows_function(geo.model, None, (), geo.q0, spheres, body)
-    again = self_rows_function(geo.model, None, (), geo.q0.copy(), list(spheres), [(f, b) for f, b in body])
-    assert again[0] is fn
-    arm_moved = geo.q0.copy()  # z's joints (base, arm) are not part of the key: z overrides them
-    arm_moved[[*geo.model.group("base"), *geo.model.group(geo.model.manipulator().group)]] += 0.3
-    assert self_rows_function(geo.model, None, (), arm_moved, spheres, body)[0] is fn
-    assert self_rows_function(geo.model, None, (), geo.q0, spheres, body[:-1])[0] is not fn
+    fn = self_rows_function(geo.model, spheres, body)
+    assert self_rows_function(geo.model, list(spheres), [(f, b) for f, b in body]) is fn
+    assert self_rows_function(geo.model, spheres, body[:-1]) is not fn
     for k in range(SELF_ROWS_KEPT + 2):  # a long-running process keeps only the latest few
-        self_rows_function(geo.model, None, (), geo.q0, spheres[: k + 1], body)
+        self_rows_function(geo.model, spheres[: k + 1], body)
     assert len(_SELF_ROWS[geo.model]) == SELF_ROWS_KEPT
-    z = ca.SX.sym("z", fn.size1_in(0))
+    n = len(geo.model.group("base")) + len(geo.model.group(geo.model.manipulator().group))
+    z = ca.SX.sym("z", n)
+    rs = RobotSymbols(geo.model, geo.q0, None, z, frames=fn.frames)
     rows = Rows.empty()
-    self_clear(geo.model, RobotSymbols(geo.model, geo.q0, None, z).q, list(spheres), list(body), rows)
+    self_clear(geo.model, rs.q, list(spheres), list(body), rows)
     direct = ca.Function("direct", [z], [ca.vertcat(*rows.g)])
-    assert len(lower) == len(rows.lower) > 0 and np.array_equal(lower, rows.lower)
+    shared = ca.Function("shared", [z], [fn.rows(rs)])
+    assert len(fn.lower) == len(rows.lower) > 0 and np.array_equal(fn.lower, rows.lower)
     rng = np.random.default_rng(0)
     for _ in range(5):
-        zv = rng.uniform(-1.0, 1.0, fn.size1_in(0))
-        assert np.allclose(np.asarray(fn(zv)), np.asarray(direct(zv)), atol=1e-12)
+        zv = rng.uniform(-1.0, 1.0, n)
+        assert np.allclose(np.asarray(shared(zv)), np.asarray(direct(zv)), atol=1e-12)
+    with pytest.raises(KeyError, match="not built"):
+        RobotSymbols(geo.model, geo.q0, None, z).frame(body[0][0])
 
 
 @pytest.mark.parametrize("robot", ["pr2", "hsr"])
@@ -730,6 +731,7 @@ def test_the_keyframe_proxy_catches_an_upper_arm_turned_into_the_chest_or_the_ot
     5, 9, 15, 16 lost keyframe starts to them)."""
     import pybullet as p
 
+    from rlgp_exec.planning.nlp.factors import RobotSymbols
     from rlgp_exec.planning.nlp.hand import self_rows_function, upper_arm_spheres
     from rlgp_exec.planning.sequence import SequenceGeometry
 
@@ -737,8 +739,13 @@ def test_the_keyframe_proxy_catches_an_upper_arm_turned_into_the_chest_or_the_ot
     try:
         model, robot = geo.model, geo.checker.robot
         assert [b.name for _, b in geo.inner] == ["chest", "l_shoulder_pan_link"]
-        body = self_rows_function(model, None, (), geo.q0, geo.self_spheres, geo.body)
-        inner = self_rows_function(model, None, (), geo.q0, upper_arm_spheres(geo.self_spheres), geo.inner)
+        def of_z(rows):  # (z -> the rows, their bounds), z = base and arm, the other joints at q0
+            z = ca.SX.sym("z", len(geo.ik.idx))
+            rs = RobotSymbols(model, geo.q0, None, z, frames=rows.frames)
+            return ca.Function("rows", [z], [rows.rows(rs)]), rows.lower
+
+        body = of_z(self_rows_function(model, geo.self_spheres, geo.body))
+        inner = of_z(self_rows_function(model, upper_arm_spheres(geo.self_spheres), geo.inner))
 
         def violated(rows, z):
             return bool(np.any(np.asarray(rows[0](z)).ravel() < rows[1]))

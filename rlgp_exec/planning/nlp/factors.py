@@ -66,10 +66,13 @@ class Rows:
 
 class RobotSymbols:
     """The robot at one symbolic configuration z = [x, y, yaw, q_arm, q_extra] (``extra``: indices of
-    further joints that move, e.g. a torso lift outside the arm; the other joints fixed)."""
+    further joints that move, e.g. a torso lift outside the arm; the other joints fixed). ``frames``:
+    further frames whose transforms (``frame``) come from the same forward kinematics as the tool's and
+    the arm spheres' (one expression: rows on any of them share it)."""
 
     def __init__(
-        self, model: RobotModel, q_nominal: FloatArray, manipulator: str | None, z: ca.SX, extra: tuple[int, ...] = ()
+        self, model: RobotModel, q_nominal: FloatArray, manipulator: str | None, z: ca.SX, extra: tuple[int, ...] = (),
+        frames: Sequence[str] = (),
     ) -> None:
         self.model, self.manip = model, model.manipulator(manipulator)
         self.idx = np.array([*model.group("base"), *model.group(self.manip.group), *extra], dtype=int)
@@ -78,12 +81,19 @@ class RobotSymbols:
             q[int(i)] = z[k]
         self.z, self.q = z, q
         self.spheres = arm_spheres(model, self.manip.name)
-        frames = tuple(dict.fromkeys((self.manip.tool_frame, *(f for f, _ in self.spheres))))
-        Ts = model.casadi_fk(frames)(q)
-        Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
-        self.T_tool = Ts[self.manip.tool_frame]
-        self.sphere_T = [Ts[f] for f, _ in self.spheres]
+        names = tuple(dict.fromkeys((self.manip.tool_frame, *(f for f, _ in self.spheres), *frames)))
+        Ts = model.casadi_fk(names)(q)
+        self._T = dict(zip(names, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
+        self.T_tool = self._T[self.manip.tool_frame]
+        self.sphere_T = [self._T[f] for f, _ in self.spheres]
         self.circles = base_circles(model)
+
+    def frame(self, name: str) -> ca.SX:
+        """T_world_frame (4, 4) of the tool, an arm sphere's frame or one of ``frames``."""
+        T = self._T.get(name)
+        if T is None:
+            raise KeyError(f"RobotSymbols: frame {name!r} not built; built: {sorted(self._T)}")
+        return T
 
     @property
     def tool_pos(self) -> ca.SX:

@@ -19,6 +19,7 @@ import itertools
 import math
 import weakref
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -31,6 +32,7 @@ from rlgp_exec.robot.pybullet_body import pose_to_matrix
 from rlgp_exec.scene.geometry import Box
 
 __all__ = [
+    "SelfRows",
     "arm_link_spheres",
     "body_obstacles",
     "finger_spheres",
@@ -326,14 +328,28 @@ def other_arm_obstacles(robot, model, q: FloatArray, manipulator: str | None = N
 
 def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],
                rows: Rows, margin: float = 0.01) -> None:
-    """The arm's spheres clear of the body's boxes (each box in its link's frame). Rows sphere by sphere,
-    each over every box; built box by box, all spheres at once (one product and one mapped ``box_sdf``
-    per box: ~0.1 s less per PR2 arm than sphere by box)."""
+    """The arm's spheres clear of the body's boxes (each box in its link's frame), at the configuration
+    q_sym (``_self_rows``' rows)."""
     if not spheres or not body:
         return
-    frames = tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
+    frames = _self_frames(spheres, body)
     Ts = model.casadi_fk(frames)(q_sym)
     Ts = dict(zip(frames, Ts if isinstance(Ts, (list, tuple)) else [Ts], strict=True))
+    g, lower = _self_rows(Ts, spheres, body, margin)
+    rows.add_all(g, lower, ca.inf)
+
+
+def _self_frames(spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]]) -> tuple[str, ...]:
+    return tuple(dict.fromkeys([*(f for f, _ in body), *(f for f, _, _ in spheres)]))
+
+
+def _self_rows(
+    Ts: dict[str, ca.SX], spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]],
+    margin: float,
+) -> tuple[ca.SX, FloatArray]:
+    """The rows (sphere by sphere, each over every box) and their lower bounds, the frames at ``Ts`` (frame
+    -> T_world_frame (4, 4)). Built box by box, all spheres at once (one product and one mapped
+    ``box_sdf`` per box: ~0.1 s less per PR2 arm than sphere by box)."""
     centres = ca.horzcat(*(Ts[f][:3, :3] @ ca.DM(c) + Ts[f][:3, 3] for f, c, _ in spheres))  # (3, S) world
     n = len(spheres)
     per_box = []
@@ -342,8 +358,20 @@ def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]]
         pb = T_b[:3, :3].T @ (centres - ca.repmat(T_b[:3, 3], 1, n))  # (3, S) in the body link's frame
         Tinv = np.linalg.inv(b.T)
         per_box.append(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ pb, Tinv[:3, 3], np.asarray(b.size) / 2))
-    # (boxes, spheres): column-major, sphere by sphere
-    rows.add_all(ca.vertcat(*per_box), np.repeat([r + margin for _, _, r in spheres], len(body)), ca.inf)
+    # (boxes, spheres) column-major: sphere by sphere, each over every box
+    return ca.vec(ca.vertcat(*per_box)), np.repeat([r + margin for _, _, r in spheres], len(body))
+
+
+class SelfRows(NamedTuple):
+    """The self-clearance rows as a function of the transforms of ``frames``: ``rows(rs)`` at a robot's
+    symbols (``RobotSymbols`` built with these frames: the rows read its forward kinematics, not a copy)."""
+
+    fn: ca.Function  # T_world_frame (4, 4) per frame of ``frames`` -> the rows
+    lower: FloatArray  # their lower bounds
+    frames: tuple[str, ...]
+
+    def rows(self, rs: RobotSymbols) -> ca.SX:
+        return self.fn(*(rs.frame(f) for f in self.frames)) if self.frames else ca.SX(0, 1)
 
 
 _SELF_ROWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> {arguments: self_rows_function's}
@@ -366,27 +394,25 @@ def _content_key(items: Sequence) -> bytes:
 
 
 def self_rows_function(
-    model, manipulator: str | None, extra: tuple[int, ...], q_fixed: FloatArray,
-    spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]],
-) -> tuple[ca.Function, FloatArray]:
-    """(z -> the ``self_clear`` rows, their lower bounds) for z = [base, the manipulator's arm, the ``extra``
-    joints] (``RobotSymbols``), the other joints at ``q_fixed``. Built once per model and arguments (the
-    ``SELF_ROWS_KEPT`` latest are kept), then shared (read-only): the keyframe NLP and level 3 call it on
-    their symbols (an SX call inlines the same expression) instead of rebuilding the rows (PR2: ~20 ms per
-    keyframe, ~90 ms per level 3)."""
-    manip = model.manipulator(manipulator)
-    fixed = np.array(q_fixed, float)
-    fixed[[*model.group("base"), *model.group(manip.group), *extra]] = 0.0  # z's joints: not part of the key
-    key = (manip.name, tuple(extra), fixed.tobytes(), _content_key(spheres), _content_key(body))
+    model, spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]], margin: float = 0.01
+) -> SelfRows:
+    """``self_clear``'s rows as a ``SelfRows`` (the transforms in, the rows out). Built once per model and
+    arguments (the ``SELF_ROWS_KEPT`` latest are kept), then shared (read-only): the keyframe NLP and level 3
+    call it on their symbols' frames (an SX call inlines the rows on the forward kinematics the other rows
+    read) instead of rebuilding the rows (PR2: ~20 ms per keyframe, ~90 ms per level 3). Before, the
+    function took the joints and inlined forward kinematics of its own: a second copy of the arm's in every
+    keyframe and level-3 checkpoint."""
+    key = (_content_key(spheres), _content_key(body), margin)
     per_model = _SELF_ROWS.setdefault(model, {})
     out = per_model.pop(key, None)
     if out is None:
-        z = ca.SX.sym("z", len(model.group("base")) + len(model.group(manip.group)) + len(extra))
-        rs = RobotSymbols(model, q_fixed, manip.name, z, extra)
-        rows = Rows.empty()
-        self_clear(model, rs.q, list(spheres), list(body), rows)
-        g = ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)
-        out = (ca.Function("self_rows", [z], [g]), np.asarray(rows.lower, float))
+        if not spheres or not body:
+            out = SelfRows(ca.Function("self_rows", [], [ca.SX(0, 1)]), np.zeros(0), ())
+        else:
+            frames = _self_frames(spheres, body)
+            Ts = {f: ca.SX.sym(f, 4, 4) for f in frames}
+            g, lower = _self_rows(Ts, spheres, body, margin)
+            out = SelfRows(ca.Function("self_rows", [Ts[f] for f in frames], [g]), np.asarray(lower, float), frames)
     per_model[key] = out  # most recently used last; a long-running executive keeps the SELF_ROWS_KEPT latest
     while len(per_model) > SELF_ROWS_KEPT:
         del per_model[next(iter(per_model))]

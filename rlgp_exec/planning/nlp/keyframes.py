@@ -319,8 +319,8 @@ def _build(
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
     Z = ca.SX.sym("z", n, K)
-    self_rows = self_rows_function(model, manipulator, (), q_start, self_spheres, body)
-    inner_rows = self_rows_function(model, manipulator, (), q_start, upper_arm_spheres(self_spheres), inner)
+    self_rows = self_rows_function(model, self_spheres, body)
+    inner_rows = self_rows_function(model, upper_arm_spheres(self_spheres), inner)
     tilt_rows: list[int] = []
     rows = Rows.empty()
     hand_reach = finger_reach(hand)
@@ -354,7 +354,7 @@ def _build(
     for k, a in enumerate(actions):
         row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
         couples.append(())
-        rs = RobotSymbols(model, q_start, manipulator, Z[:, k])
+        rs = RobotSymbols(model, q_start, manipulator, Z[:, k], frames=(*self_rows.frames, *inner_rows.frames))
         if a.name in ("open_drawer", "close_drawer"):
             if knob != a.obj:
                 raise RlgpError(f"keyframe NLP: {a} without holding the knob of {a.obj} (holding {knob})")
@@ -372,8 +372,8 @@ def _build(
         still_bx = [replace(b, T=poses[b.name]) for b in still]
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
-        rows.add_all(self_rows[0](Z[:, k]), self_rows[1], ca.inf)
-        rows.add_all(inner_rows[0](Z[:, k]), inner_rows[1], ca.inf)
+        rows.add_all(self_rows.rows(rs), self_rows.lower, ca.inf)
+        rows.add_all(inner_rows.rows(rs), inner_rows.lower, ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]

@@ -453,8 +453,9 @@ def optimize_paths(
         fixed[idx] = 0.0
         key = fixed.tobytes()
         if key not in shared:
-            fn, lower = self_rows_function(model, manip.name, extra, q0, self_spheres, body)
-            shared[key] = (RobotSymbols(model, q0, manip.name, z, extra), (fn(z), lower))
+            self_rows = self_rows_function(model, self_spheres, body)
+            rs = RobotSymbols(model, q0, manip.name, z, extra, frames=self_rows.frames)
+            shared[key] = (rs, (self_rows.rows(rs), self_rows.lower))
         return shared[key]
 
     def one(k: int) -> Result:
