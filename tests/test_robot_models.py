@@ -341,3 +341,52 @@ def test_bad_keyframe_limits_are_model_errors_naming_the_entry(tmp_path, monkeyp
     monkeypatch.setattr(config, "robot_dir", lambda name: tmp_path)
     with pytest.raises(ModelError, match=match):
         config.load_robot_config("pr2")
+
+
+def test_pairs_no_moving_joint_separates_are_left_out_with_the_same_verdicts():
+    """``ignore_rigid_pairs``: for configurations that move the base and the right arm only, the pairs of
+    links those joints do not move apart (the grippers' fingers, the tucked left arm's links, the
+    casters) are no longer checked, and every penetration is the same as without the filter (random
+    right-arm postures, many into the torso or the left arm); refused when such a pair already
+    penetrates at the first configuration."""
+    robot = load_robot("pr2")
+    clients = [p.connect(p.DIRECT) for _ in range(2)]
+    try:
+        plain, filtered = (PyBulletRobot(robot, c) for c in clients)
+        q0 = robot.home()
+        arm = np.array([*robot.group("base"), *robot.group("right_arm")])
+        rng = np.random.default_rng(4)
+        lo, hi = np.maximum(robot.limits.lower[arm], -3.0), np.minimum(robot.limits.upper[arm], 3.0)
+        qs = np.repeat(q0[None], 60, axis=0)
+        qs[1:, arm] = rng.uniform(lo, hi, (59, arm.size))
+        assert filtered.ignore_rigid_pairs(qs, tolerance=1e-3)
+        plain.set_q(q0)
+        assert any(c.is_self for c in plain.contacts(tolerance=-1e-3))  # the fingers touch each other...
+        assert not any(c.is_self for c in filtered.contacts(tolerance=-1e-3))  # ...a pair left out
+        hits = 0
+        for q in qs[1:]:
+            plain.set_q(q)
+            filtered.set_q(q)
+            a = {(c.link, c.other_link) for c in plain.contacts(tolerance=1e-3)}
+            b = {(c.link, c.other_link) for c in filtered.contacts(tolerance=1e-3)}
+            assert a == b
+            hits += bool(a)
+        assert hits > 10
+        left = np.array(robot.group("left_arm"))  # a left-arm posture into the body, the left arm not moving
+        lo_l, hi_l = np.maximum(robot.limits.lower[left], -3.0), np.minimum(robot.limits.upper[left], 3.0)
+        for _ in range(200):
+            into = q0.copy()
+            into[left] = rng.uniform(lo_l, hi_l)
+            plain.set_q(into)
+            if any(c.is_self for c in plain.contacts(tolerance=1e-3)):
+                break
+        else:
+            raise AssertionError("no left-arm posture into the body in 200 draws")
+        fresh = PyBulletRobot(robot, clients[1])
+        moves = np.repeat(into[None], 2, axis=0)
+        moves[1, robot.group("right_arm")] += 0.1
+        assert not fresh.ignore_rigid_pairs(moves, tolerance=1e-3)
+        assert fresh.contacts(tolerance=1e-3)  # still checked
+    finally:
+        for c in clients:
+            p.disconnect(c)

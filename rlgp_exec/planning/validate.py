@@ -148,6 +148,9 @@ def _replay(
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
     used: set[int] = set()
+    waypoints = [ph.path for ph in (*phases, *fallbacks.values()) if len(ph.path)]
+    if waypoints:  # links no joint of the plan moves apart stay as they start: checked there, then not
+        robot.ignore_rigid_pairs(np.vstack(waypoints), tolerance)
     held: dict[str, _Held] = {}  # two arms may hold one object each
     try:
         if scene.start.held is not None:  # in the hand from the start (a replan mid-task)

