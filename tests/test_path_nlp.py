@@ -268,3 +268,23 @@ def test_the_objective_assembled_from_its_operators_is_the_acceleration_cost(n, 
         want = sum(level3._acc_cost(Z, w) for Z in paths)
         assert 0.5 * x @ H @ x + b @ x + c == pytest.approx(want, rel=1e-12)
     assert np.allclose(H, H.T) and np.all(np.linalg.eigvalsh(H) > 0.0)  # convex: a straight path is its least
+
+
+def test_waypoint_bounds_keep_the_wrist_within_its_keyframe_limits_but_where_the_warm_start_is_not():
+    """``_waypoint_bounds``: the PR2's wrist flex stays above its keyframe limit (fingers clear of the
+    forearm) at every inner waypoint, but no higher than the warm start where that starts below it (the
+    tucked start); joints without such limits keep their bounds at every waypoint."""
+    from rlgp_exec.robot import load_robot
+
+    model = load_robot("pr2")
+    idx = np.array([*model.group("base"), *model.group("right_arm")])
+    lo, hi = np.full(idx.size, -5.0), np.full(idx.size, 5.0)
+    wrist = list(idx).index(model.index("r_wrist_flex_joint"))
+    inner = np.zeros((6, idx.size))
+    inner[:, wrist] = [-1.85, -1.80, -1.70, -1.60, -1.76, -1.0]
+    lo_w, hi_w = level3._waypoint_bounds(model, idx, lo, hi, inner)
+    limit = model.config.keyframe_limits["r_wrist_flex_joint"][0]
+    assert np.allclose(lo_w[:, wrist], [-1.85, -1.80, limit, limit, -1.76, limit])
+    assert np.allclose(hi_w[:, wrist], 0.0)  # the limit's upper end
+    others = np.arange(idx.size) != wrist
+    assert np.all(lo_w[:, others] == -5.0) and np.all(hi_w[:, others] == 5.0)

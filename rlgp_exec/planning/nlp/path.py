@@ -272,8 +272,8 @@ class _Block:
 
     Zw: FloatArray  # (T, n) resampled warm start
     dt: float
-    lo: FloatArray  # (n,) bounds of the waypoints: joint limits, the arm within the warm start's range
-    hi: FloatArray
+    lo: FloatArray  # (T - 2, n) bounds of the inner waypoints: joint limits, the arm within the warm start's
+    hi: FloatArray  # range, ``_waypoint_bounds``
     g_all: ca.Function  # z -> every collision row
     lb_all: FloatArray
     g_expr: list[ca.SX]
@@ -317,8 +317,9 @@ def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, se
     lo[3:], hi[3:] = np.maximum(lo[3:], zs[:, 3:].min(axis=0) - pad), np.minimum(hi[3:], zs[:, 3:].max(axis=0) + pad)
     if seg.fix_base:
         lo[:3] = hi[:3] = zs[0, :3]
+    lo_w, hi_w = _waypoint_bounds(model, idx, lo, hi, Zw[1:-1])
     pts = _checkpoints(Zw)
-    blk = _Block(Zw, SLACK * tau, lo, hi, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int),
+    blk = _Block(Zw, SLACK * tau, lo_w, hi_w, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int),
                  np.zeros((0, len(pts))), 0)
     if len(lb_all):
         vals = np.asarray(g_all.map(len(pts))(pts.T)).reshape(len(lb_all), -1)
@@ -338,6 +339,24 @@ def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, se
     clear = not len(lb_all) or bool(np.all(vals[blk.keep] >= blk.lb))
     blk.settled = clear and _straight(Zw)
     return blk
+
+
+def _waypoint_bounds(
+    model, idx, lo: FloatArray, hi: FloatArray, inner: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """(T - 2, n) bounds of the inner waypoints: ``lo``/``hi`` (n,) at each, a joint with ``keyframe_limits``
+    (where the hand leaves the arm's own links: the PR2's wrist flex, its fingers in the forearm beyond
+    -1.75 rad) kept within them, or no further out than the warm start ``inner`` (T - 2, n) is at that
+    waypoint. The tucked PR2 starts at -1.85 rad; level 3 kept the wrist there while it rolled (the guide
+    flexes it back first), the fingers met the forearm, and the replay put the segment back to its
+    guide (pick_place_pr2 seeds 16 and 17, sorting_pr2 seed 1)."""
+    lo_w, hi_w = np.tile(lo, (len(inner), 1)), np.tile(hi, (len(inner), 1))
+    for j, i in enumerate(idx):
+        narrow = model.config.keyframe_limits.get(model.joint_names[int(i)])
+        if narrow is not None:
+            lo_w[:, j] = np.maximum(lo_w[:, j], np.minimum(narrow[0], inner[:, j]))
+            hi_w[:, j] = np.minimum(hi_w[:, j], np.maximum(narrow[1], inner[:, j]))
+    return lo_w, hi_w
 
 
 def _straight(Z: FloatArray) -> bool:
@@ -394,8 +413,8 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
         lbg += [*b.lb[:, 0::2].T.reshape(-1), *b.lb[:, 1::2].T.reshape(-1), *np.tile(-vel, m + 1)]
         ubg += [*np.full(k * (2 * m + 1), np.inf), *np.tile(vel, m + 1)]
         x0.append(b.Zw[1:-1].reshape(-1))
-        lbx.append(np.tile(b.lo, m))
-        ubx.append(np.tile(b.hi, m))
+        lbx.append(b.lo.reshape(-1))
+        ubx.append(b.hi.reshape(-1))
     x, g = ca.vertcat(*X), ca.vertcat(*G)
     jac = ca.diagcat(*J)
     # the objective is quadratic: 0.5 x' H_f x + b' x + c, its Hessian a constant; IPOPT gets it in that
