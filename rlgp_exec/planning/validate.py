@@ -6,7 +6,9 @@ the tool frozen at the grasp) until it is placed.
 Collisions are checked for the robot (against the world and itself) and for the held object (against
 the world, and against the robot but for the links of the hand holding it: a held object swung
 through the robot's own body or its other arm is a collision). The goal literals are then checked in the
-final simulated state; a literal this checker cannot evaluate counts as unmet, never as met.
+final simulated state; a literal this checker cannot evaluate counts as unmet, never as met. Pairs of
+robot links that no joint of the plan moves apart are checked at the first configuration only (their
+contact cannot change: ``PyBulletRobot.ignore_rigid_pairs``).
 
 Drawers (``drawer_replay``): a phase that ``drives_drawer`` moves the drawer joint with the hand on the
 knob (objects inside ride along; leaving the drawer's axis is a violation); the fingers may touch the
@@ -118,6 +120,7 @@ def goal_holds(
 def validate_plan(
     scene: Scene, phases: Sequence[Phase], step: float = STEP, tolerance: float = TOLERANCE
 ) -> Validation:
+    """The plan's phases replayed in a PyBullet world of ``scene`` (module docstring)."""
     return _replay(scene, phases, {}, step, tolerance)[0]
 
 
@@ -148,11 +151,11 @@ def _replay(
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
     used: set[int] = set()
-    waypoints = [ph.path for ph in (*phases, *fallbacks.values()) if len(ph.path)]
-    if waypoints:  # links no joint of the plan moves apart stay as they start: checked there, then not
-        robot.ignore_rigid_pairs(np.vstack(waypoints), tolerance)
     held: dict[str, _Held] = {}  # two arms may hold one object each
     try:
+        waypoints = [ph.path for ph in (*phases, *fallbacks.values()) if len(ph.path)]
+        if waypoints:  # links no joint of the plan moves apart stay as they start: checked there, then not
+            robot.ignore_rigid_pairs(np.vstack(waypoints), tolerance)
         if scene.start.held is not None:  # in the hand from the start (a replan mid-task)
             man = model.manipulator(scene.start.arm)
             held[scene.start.held] = _Held(man.tool_frame, scene.start.T_tool_obj, 0.0, frozenset(man.links))

@@ -51,6 +51,20 @@ Q_TRIES = 6
 Q_SCALE = 2.0  # [rad per m] the yaw's and the arm joints' standard deviation per sigma of the base's
 
 
+@dataclass
+class _Budget:
+    """IK solves left to spend (a bridge's samples share one)."""
+
+    left: int
+
+    def take(self) -> bool:
+        """Spend one; False when none is left."""
+        if self.left <= 0:
+            return False
+        self.left -= 1
+        return True
+
+
 class QueryStatus(enum.Enum):
     OK = "ok"
     START_UNREACHABLE = "start_unreachable"  # no collision-free IK for the start
@@ -232,9 +246,9 @@ class ReachabilityPlanner:
             out.append(z)
         return out
 
-    def _solve_node(self, x: FloatArray, budget: list[int] | None = None) -> tuple[FloatArray, float] | None:
+    def _solve_node(self, x: FloatArray, budget: _Budget | None = None) -> tuple[FloatArray, float] | None:
         """A collision-free configuration (q, cost) putting the tool at x, by IK from the nearest nodes and
-        four base headings; ``budget``: [IK solves left] (spent here; none left: None)."""
+        four base headings; ``budget``: the IK solves it may spend (none left: None)."""
         if self.ik.inside_fixture(x) is not None:
             return None
         near = self.g.nearest(x, 1)
@@ -244,10 +258,8 @@ class ReachabilityPlanner:
         a0 = self.rng.uniform(-math.pi, math.pi)
         inits += [self.ik.guess(x, a0 + k * math.pi / 2) for k in range(4)]  # approach from four sides
         for z0 in inits:
-            if budget is not None:
-                if budget[0] <= 0:
-                    return None
-                budget[0] -= 1
+            if budget is not None and not budget.take():
+                return None
             res = self.ik.solve(x, z0)
             if res.ok and not self.in_collision(res.q):
                 return res.q, res.cost
@@ -279,11 +291,11 @@ class ReachabilityPlanner:
         return node[0], z, node[1]
 
     def _candidates(
-        self, x: FloatArray, q: FloatArray, tries: int, stage: str = "both", budget: list[int] | None = None
+        self, x: FloatArray, q: FloatArray, tries: int, stage: str = "both", budget: _Budget | None = None
     ):
         """New nodes (x, q, c) round a point: first drawn in joint space round q (``_sample_q``,
         Q_TRIES per sigma; stage "q"), then task-space samples round x, each by IK (``tries`` per
-        sigma; stage "ik"; ``budget``: [IK solves left], shared by the caller's calls)."""
+        sigma; stage "ik"; ``budget``: the IK solves it may spend, shared by the caller's calls)."""
         if stage in ("q", "both"):
             for sigma in ENHANCE_SIGMAS:
                 for _ in range(Q_TRIES):
@@ -293,7 +305,7 @@ class ReachabilityPlanner:
         if stage in ("ik", "both"):
             for sigma in ENHANCE_SIGMAS:
                 for _ in range(tries):
-                    if budget is not None and budget[0] <= 0:
+                    if budget is not None and budget.left <= 0:
                         return
                     xs = x + self.rng.normal(0.0, sigma, 3)
                     node = self._solve_node(xs, budget)
@@ -352,7 +364,7 @@ class ReachabilityPlanner:
         d, j = cKDTree(self.g.X[B]).query(self.g.X[A])
         in_task = [(int(A[k]), int(B[j[k]])) for k in np.argsort(d, kind="stable")[:pairs]]
         closest = list(dict.fromkeys(self._closest_pairs(A, B, pairs) + in_task))
-        budget = [BRIDGE_IK_SOLVES]
+        budget = _Budget(BRIDGE_IK_SOLVES)
         for stage in ("q", "ik"):
             for u, v in closest:
                 mid = 0.5 * (self.g.X[u] + self.g.X[v])
