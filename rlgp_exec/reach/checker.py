@@ -125,7 +125,7 @@ class WorldChecker:
         (None: the robot's first)."""
         from sim.world import build_world
 
-        self.world = build_world(replace(scene, objects=()), tags=False)
+        self.world = build_world(replace(scene, objects=()), tags=False, visuals=False)
         self.robot, self.client = self.world.robot, self.world.client
         self.model = self.world.robot_model
         self._fixed_bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]

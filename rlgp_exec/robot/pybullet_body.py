@@ -82,10 +82,14 @@ class Contact:
 class PyBulletRobot:
     """A :class:`RobotModel` instantiated in a PyBullet client."""
 
-    def __init__(self, model: RobotModel, client: int) -> None:
+    def __init__(self, model: RobotModel, client: int, *, visuals: bool = True) -> None:
+        """``visuals``: load the URDF's visual meshes too (a world a camera renders); a world that only
+        checks collisions loads without them, in half the time (the PR2: ~21 -> ~11 ms)."""
         self.model = model
         self.client = client
         flags = p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+        if not visuals:
+            flags |= p.URDF_IGNORE_VISUAL_SHAPES
         try:
             with quiet_stdout():
                 self.id = p.loadURDF(
