@@ -183,6 +183,37 @@ def test_level3_segment_by_segment_is_the_whole_path_optimum(planned):
         assert np.abs(Z_joint - Z_alone).max() < 1e-2
 
 
+def _violation_everywhere(b, Z: np.ndarray) -> float:
+    """The largest violation [m] of every collision row of block b at every checkpoint of its path Z (T, n),
+    each kept row against its bound at that checkpoint, the rows left out against their own."""
+    pts = level3._checkpoints(Z)
+    vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1)
+    lb = np.repeat(b.lb_all[:, None], len(pts), axis=1)
+    lb[b.keep] = b.lb
+    return float(np.max(np.r_[(lb - vals).reshape(-1), 0.0]))
+
+
+def test_level3_rows_left_out_where_far_hold_there_or_are_put_back(planned):
+    """A large block has its rows only at the checkpoints where they are near active (``_Block.on``); the
+    solution keeps every row at every checkpoint all the same. With every row left out everywhere, the
+    first solve cuts through the obstacles, and the rows it violates are put back at every checkpoint."""
+    model, _, (segments, T, kw, _) = planned
+    blocks, idx, w = _blocks(model, segments, T, kw)
+    big = max(range(len(blocks)), key=lambda i: blocks[i].on.size)
+    b = blocks[big]
+    assert b.on.size >= level3.PRUNE_MIN and 0 < b.on.sum() < b.on.size
+    res = level3._solve(model, [b], idx, w, T, 200)
+    assert res.violation <= level3.FEAS_TOL
+    assert _violation_everywhere(b, res.paths[id(b)]) <= level3.FEAS_TOL
+    (b,), _, _ = _blocks(model, [segments[big]], T, kw)
+    b.on[:] = False
+    res = level3._solve(model, [b], idx, w, T, 200)
+    back = b.on.all(axis=1)
+    assert back.any() and not b.on[~back].any(), "a violated row is put back at every checkpoint, none elsewhere"
+    assert res.violation <= level3.FEAS_TOL
+    assert _violation_everywhere(b, res.paths[id(b)]) <= level3.FEAS_TOL
+
+
 def test_level3_in_two_processes_is_level3_in_one(planned):
     """The segments solved half in a forked child (``planning.forked``) give the same result, bit for bit."""
     model, _, (segments, T, kw, _) = planned

@@ -34,7 +34,9 @@ factors (``nlp.factors``, ``nlp.hand``), the same the keyframe NLP and GNPP use:
 
 Objective: the weighted squared second differences (acceleration), base weighing ``W_BASE``.
 Rows far from active (slack > ``CUTOFF``) at the warm start and on the straight line between the
-ends are left out; the solution is checked against every row and a re-solve adds the violated ones.
+ends are left out; in a large block (``PRUNE_MIN``) a kept row is in the NLP only at the checkpoints
+where it is near active on either (and the checkpoints either side). The solution is checked against
+every row at every checkpoint and a re-solve adds the violated ones, at every checkpoint.
 A row the warm start itself violates at a checkpoint (the spheres are conservative proxies of meshes
 the exact checker passed) is bounded there by the warm start's value instead (``relaxed``): never
 worse than the guide.
@@ -72,6 +74,12 @@ MARGIN = 0.01  # [m] spheres keep this from the world boxes
 BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
 SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
 CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are left out
+# kept rows x checkpoints from which a row is left out at the checkpoints where it is far (``_Block.on``).
+# pick_place_pr2's first segment, a base move across the room: 1239 rows -> ~400, its solve 108 -> 59 ms
+# (seed 1). The HSR's segments (at most ~450 rows) solve no faster that way: their optima leave both the
+# guide and the line, and the re-solves that puts back the rows cost more than the smaller NLP saves
+# (table_clearing_hsr seeds 1-6: 11 re-solves against 3, level 3 median 0.26 -> 0.29 s)
+PRUNE_MIN = 600
 FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
@@ -283,6 +291,9 @@ class _Block:
     lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
     # the warm start violates them)
     relaxed: int
+    # (len(keep), 2 T - 3) bool: the checkpoints at which each kept row is in the NLP: where it is near active at
+    # the warm start or on the line (and the checkpoints either side), in a block of PRUNE_MIN rows or more; all
+    on: np.ndarray
     # a segment whose warm start is a straight move (resampled: zero acceleration cost, the objective's least)
     # satisfying every row at every checkpoint (as bounded here: a segment that is not strict has its rows
     # relaxed to the warm start): that is the optimum, left out of the NLP. IPOPT from it ended up to ~1e-4
@@ -320,15 +331,16 @@ def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, se
     lo_w, hi_w = _waypoint_bounds(model, idx, lo, hi, Zw[1:-1])
     pts = _checkpoints(Zw)
     blk = _Block(Zw, SLACK * tau, lo_w, hi_w, g_all, lb_all, list(rows.g), z, zp, np.zeros(0, int),
-                 np.zeros((0, len(pts))), 0)
+                 np.zeros((0, len(pts))), 0, np.zeros((0, len(pts)), bool))
     if len(lb_all):
         vals = np.asarray(g_all.map(len(pts))(pts.T)).reshape(len(lb_all), -1)
         # near active at the warm start or on the straight line between the ends (where the
-        # objective pulls): the rows the solution is likely to meet
-        line = Zw[0] + np.linspace(0.0, 1.0, T)[1:-1, None] * (Zw[-1] - Zw[0])
+        # objective pulls), checkpoint by checkpoint: where the solution is likely to meet them
+        line = _checkpoints(Zw[0] + np.linspace(0.0, 1.0, T)[:, None] * (Zw[-1] - Zw[0]))
         on_line = np.asarray(g_all.map(len(line))(line.T)).reshape(len(lb_all), -1)
-        low = np.minimum(vals.min(axis=1), on_line.min(axis=1))
-        keep = np.flatnonzero(low - lb_all < CUTOFF)
+        keep = np.flatnonzero(np.minimum(vals.min(axis=1), on_line[:, 1::2].min(axis=1)) - lb_all < CUTOFF)
+        near = np.minimum(vals, on_line)[keep] - lb_all[keep, None] < CUTOFF
+        blk.on = _widened(near) if near.size >= PRUNE_MIN else np.ones_like(near)
         if seg.strict:  # never below the fixed ends (a row they violate: the spheres' conservatism)
             ends = np.asarray(g_all.map(2)(Zw[[0, -1]].T)).reshape(len(lb_all), 2).min(axis=1)
             lb = np.repeat(np.minimum(lb_all, ends - 1e-6)[keep, None], len(pts), axis=1)
@@ -339,6 +351,16 @@ def _block(model, rs: RobotSymbols, self_rows: tuple[ca.SX, FloatArray], idx, se
     clear = not len(lb_all) or bool(np.all(vals[blk.keep] >= blk.lb))
     blk.settled = clear and _straight(Zw)
     return blk
+
+
+def _widened(on: np.ndarray) -> np.ndarray:
+    """(k, c) bool: ``on`` (k, c) (rows x checkpoints in time order) and each checkpoint's neighbours (half a
+    step before and after): the solution's checkpoint lies between the warm start's and the line's, not
+    always at the same time."""
+    out = on.copy()
+    out[:, 1:] |= on[:, :-1]
+    out[:, :-1] |= on[:, 1:]
+    return out
 
 
 def _waypoint_bounds(
@@ -402,16 +424,20 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
         k = int(g_kept.numel())
         at = ca.Function("at", [b.z], [g_kept])
         jat = ca.Function("jat", [b.z], [ca.jacobian(g_kept, b.z)])
-        G += [ca.vec(at.map(m + 1)(Mid)), ca.vec(at.map(m)(Zi)), ca.vec(Zfull[:, 1:] - Zfull[:, :-1])]
+        # a row's values at every checkpoint (time-major: row r at checkpoint t is entry t k + r), of which
+        # the NLP takes those ``on``
+        mid, way = np.flatnonzero(b.on[:, 0::2].T.reshape(-1)), np.flatnonzero(b.on[:, 1::2].T.reshape(-1))
+        G += [ca.vec(at.map(m + 1)(Mid))[mid.tolist()], ca.vec(at.map(m)(Zi))[way.tolist()],
+              ca.vec(Zfull[:, 1:] - Zfull[:, :-1])]
         if k:
-            J_mid = ca.mtimes(ca.diagcat(*ca.horzsplit(jat.map(m + 1)(Mid), n)), ca.MX(S))
-            J_way = ca.diagcat(*ca.horzsplit(jat.map(m)(Zi), n))
+            J_mid = ca.mtimes(ca.diagcat(*ca.horzsplit(jat.map(m + 1)(Mid), n))[mid.tolist(), :], ca.MX(S))
+            J_way = ca.diagcat(*ca.horzsplit(jat.map(m)(Zi), n))[way.tolist(), :]
         else:
             J_mid, J_way = ca.MX(0, n * m), ca.MX(0, n * m)
         J.append(ca.vertcat(J_mid, J_way, ca.MX(D)))
         vel = model.limits.velocity[idx] * b.dt
-        lbg += [*b.lb[:, 0::2].T.reshape(-1), *b.lb[:, 1::2].T.reshape(-1), *np.tile(-vel, m + 1)]
-        ubg += [*np.full(k * (2 * m + 1), np.inf), *np.tile(vel, m + 1)]
+        lbg += [*b.lb[:, 0::2].T.reshape(-1)[mid], *b.lb[:, 1::2].T.reshape(-1)[way], *np.tile(-vel, m + 1)]
+        ubg += [*np.full(mid.size + way.size, np.inf), *np.tile(vel, m + 1)]
         x0.append(b.Zw[1:-1].reshape(-1))
         lbx.append(b.lo.reshape(-1))
         ubx.append(b.hi.reshape(-1))
@@ -592,12 +618,20 @@ def _solve(model, blocks: list[_Block], idx, w: FloatArray, T: int, max_iter: in
             opt[id(b)] = np.vstack([b.Zw[0], Zi, b.Zw[-1]])
             if len(b.lb_all):
                 pts = _checkpoints(opt[id(b)])
-                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1).min(axis=1)
-                bad = np.setdiff1d(np.flatnonzero(vals < b.lb_all - FEAS_TOL), b.keep)
-                if bad.size:
-                    viol = max(viol, float(np.max(b.lb_all[bad] - vals[bad])))
+                vals = np.asarray(b.g_all.map(len(pts))(pts.T)).reshape(len(b.lb_all), -1)
+                # kept rows violated at a checkpoint where they were left out: in at every checkpoint
+                off_bad = ~b.on & (vals[b.keep] < b.lb - FEAS_TOL)
+                if off_bad.any():
+                    viol = max(viol, float(np.max((b.lb - vals[b.keep])[off_bad])))
+                    b.on[off_bad.any(axis=1)] = True
+                    added += int(off_bad.sum())
+                low = vals.min(axis=1)
+                bad = np.setdiff1d(np.flatnonzero(low < b.lb_all - FEAS_TOL), b.keep)
+                if bad.size:  # rows left out altogether: in at every checkpoint
+                    viol = max(viol, float(np.max(b.lb_all[bad] - low[bad])))
                     b.keep = np.r_[b.keep, bad]
                     b.lb = np.vstack([b.lb, np.repeat(b.lb_all[bad, None], len(pts), axis=1)])
+                    b.on = np.vstack([b.on, np.ones((bad.size, len(pts)), bool)])
                     added += bad.size
         if not added:
             break
