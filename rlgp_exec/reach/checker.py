@@ -192,8 +192,10 @@ class WorldChecker:
 
     def attach(self, size: FloatArray, T_tool_obj: FloatArray) -> None:
         """Check with a box of ``size`` (3,) held rigidly at T_tool_obj (4, 4) from the tool frame. A box
-        of each size is made once (with its collision filters against every robot link) and parked
-        below the world, 2 m apart, while not held."""
+        of each size is made once and parked below the world, 2 m apart, while not held. Its distances
+        are measured pair by pair (``getClosestPoints``, which no collision filter affects); it takes no
+        part in the collision detection of the self-collision checks (group and mask 0: one call, where
+        a filter against each robot link cost ~0.1 ms each, 9 ms a box on the PR2)."""
         self.detach()
         half = [float(v) / 2 for v in size]
         key = tuple(half)
@@ -201,9 +203,7 @@ class WorldChecker:
             park = [0.0, 0.0, -10.0 - 2.0 * len(self._held_boxes)]
             col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=self.client)
             body = p.createMultiBody(0.0, col, -1, park, physicsClientId=self.client)
-            p.setCollisionFilterPair(self.robot.id, body, -1, -1, 0, physicsClientId=self.client)
-            for link in range(p.getNumJoints(self.robot.id, physicsClientId=self.client)):
-                p.setCollisionFilterPair(self.robot.id, body, link, -1, 0, physicsClientId=self.client)
+            p.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=self.client)
             self._held_boxes[key] = (body, park)
         extra = float(np.linalg.norm(T_tool_obj[:3, 3]) + np.linalg.norm(half))
         self.attached = (self._held_boxes[key][0], np.asarray(T_tool_obj, float), extra)
