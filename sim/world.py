@@ -229,9 +229,12 @@ def _object_body(client: int, obj, tags: bool) -> int:
     return body
 
 
-def build_world(scene: Scene, client: int | None = None, *, tags: bool = True, visuals: bool = True) -> World:
-    """Instantiate ``scene`` in PyBullet (a new DIRECT client unless ``client`` is given). ``visuals``: the
-    robot's visual meshes too (False for a world no camera renders: collision checks, replays)."""
+def build_world(
+    scene: Scene, client: int | None = None, *, tags: bool = True, collision_only: bool = False
+) -> World:
+    """Instantiate ``scene`` in PyBullet (a new DIRECT client unless ``client`` is given). ``collision_only``:
+    a world no camera renders (collision checks, replays) gets the robot's collision-only body
+    (``PyBulletRobot``)."""
     owns = client is None
     cid = p.connect(p.DIRECT) if client is None else client
     try:
@@ -241,7 +244,7 @@ def build_world(scene: Scene, client: int | None = None, *, tags: bool = True, v
                                         physicsClientId=cid)
         floor = p.createMultiBody(0.0, floor_col, floor_vis, [0, 0, -0.05], physicsClientId=cid)
         model = load_robot(scene.robot.name)
-        robot = PyBulletRobot(model, cid, visuals=visuals)
+        robot = PyBulletRobot(model, cid, collision_only=collision_only)
         robot.ignore_floor(floor)
         robot.set_q(model.home(scene.robot.base, scene.robot.joints))
         world = World(cid, scene, model, robot, floor, owns_client=owns)

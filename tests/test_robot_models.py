@@ -259,8 +259,8 @@ def test_pr2_urdf_comes_from_the_wheel_with_package_paths_rewritten():
 
 
 def test_prepared_urdf_texts_are_kept_on_disk_by_what_they_are_made_from(tmp_path, monkeypatch):
-    """The PyBullet and pinocchio texts are written once per set of inputs and read back equal; other base
-    speeds (part of the prepended base joints) make other texts."""
+    """The PyBullet, pinocchio and collision-only PyBullet texts are written once per set of inputs and read
+    back equal; other base speeds (part of the prepended base joints) make other texts."""
     import dataclasses
     import tempfile
 
@@ -271,14 +271,15 @@ def test_prepared_urdf_texts_are_kept_on_disk_by_what_they_are_made_from(tmp_pat
     cfg = load_robot_config("pr2")
     fresh = prepare_urdf(cfg)
     kept = sorted((tmp_path / "rlgp-exec-urdf").iterdir())
-    assert len(kept) == 2 and sum(f.name.endswith(".pinocchio.urdf") for f in kept) == 1
+    assert len(kept) == 3 and sum(f.name.endswith(".pinocchio.urdf") for f in kept) == 1
+    assert sum(f.name.endswith(".collision.urdf") for f in kept) == 1
     assert prepare_urdf(cfg) == fresh  # read back
     assert Path(fresh.pybullet_path).read_text().count('type="continuous"') > 0  # PyBullet's keeps them
     assert 'type="continuous"' not in fresh.pinocchio_xml
     slow = dataclasses.replace(cfg, base=dataclasses.replace(cfg.base, velocity=(0.1, 0.1, 0.1)))
     other = prepare_urdf(slow)
     assert other.pybullet_path != fresh.pybullet_path and other.pinocchio_xml != fresh.pinocchio_xml
-    assert len(list((tmp_path / "rlgp-exec-urdf").iterdir())) == 4
+    assert len(list((tmp_path / "rlgp-exec-urdf").iterdir())) == 6
 
 
 def test_the_pr2_keyframe_wrist_limit_is_where_the_fingers_leave_the_forearm():
@@ -390,3 +391,46 @@ def test_pairs_no_moving_joint_separates_are_left_out_with_the_same_verdicts():
     finally:
         for c in clients:
             p.disconnect(c)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_the_collision_only_body_collides_as_the_full_one(name):
+    """The body of a collision-only world (``collision_only``: the links without collision shapes on fixed
+    joints left out) reports the same self-contacts and the same distances to a box at random
+    configurations as the full body; a left-out link rides on its ``carrier_index`` (a constant transform
+    from it at every configuration)."""
+    model = load_robot(name)
+    assert model.urdf.pruned, "some links are left out"
+    assert not set(model.urdf.pruned) & model.urdf.links_with_collision
+    bodies, boxes = [], []
+    for only in (False, True):
+        client = p.connect(p.DIRECT)
+        bodies.append(PyBulletRobot(model, client, collision_only=only))
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.3, 0.3, 0.4], physicsClientId=client)
+        boxes.append(p.createMultiBody(0.0, col, -1, [0.6, 0.0, 0.6], physicsClientId=client))
+    full, lean = bodies
+    try:
+        assert p.getNumJoints(lean.id, physicsClientId=lean.client) < p.getNumJoints(full.id, physicsClientId=full.client)
+        rng = np.random.default_rng(5)
+        pruned = sorted(model.urdf.pruned)
+        offsets = None
+        for _ in range(N_CONFIGS):
+            q = model.random_q(rng, base_box=0.3)
+            seen = []
+            for body, box in zip(bodies, boxes, strict=True):
+                body.set_q(q)
+                self_pairs = sorted((c.link, c.other_link, round(c.distance, 6)) for c in body.contacts(1e-3)
+                                    if c.is_self)
+                dist = sorted((body.link_name[c[3]], round(c[8], 6))
+                              for c in p.getClosestPoints(body.id, box, 0.5, physicsClientId=body.client))
+                seen.append((self_pairs, dist))
+            assert seen[0] == seen[1]
+            Ts = model.fk_many(q, pruned)
+            carriers = model.fk_many(q, [lean.link_name[lean.carrier_index(n)] for n in pruned])
+            rel = np.array([np.linalg.solve(C, T) for C, T in zip(carriers, Ts, strict=True)])
+            if offsets is None:
+                offsets = rel
+            assert np.abs(rel - offsets).max() < 1e-9
+    finally:
+        for body in bodies:
+            p.disconnect(body.client)

@@ -62,7 +62,7 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
     results = tuple(
         f"{d.get('status')}: {d.get('detail')}" for _, d in rec.topic("/events") if d.get("kind") == "result"
     )
-    world = build_world(scene, tags=False, visuals=False)
+    world = build_world(scene, tags=False, collision_only=True)
     collisions: set[str] = set()
     dist = 0.0
     try:

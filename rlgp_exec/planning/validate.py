@@ -147,7 +147,7 @@ def _replay(
     """The replay (module docstring): its validation, and the phases replayed on their fallbacks."""
     from sim.world import build_world
 
-    world = build_world(scene, tags=False, visuals=False)
+    world = build_world(scene, tags=False, collision_only=True)
     robot, model, client = world.robot, world.robot_model, world.client
     collisions: list[str] = []
     used: set[int] = set()

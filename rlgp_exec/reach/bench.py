@@ -40,7 +40,7 @@ def run_reachability_bench(
     checker = WorldChecker(scene, model.manipulator().group)
     ik = ReachIK(model, scene, nominal_q(model, scene))
     planner = ReachabilityPlanner(graph, ik, checker, rng_seed=seed)
-    replay = build_world(replace(scene, objects=()), tags=False, visuals=False)
+    replay = build_world(replace(scene, objects=()), tags=False, collision_only=True)
     rng = np.random.default_rng(seed)
     nodes0 = graph.alive
     edges0 = graph.G.number_of_edges()

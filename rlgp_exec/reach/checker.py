@@ -125,7 +125,7 @@ class WorldChecker:
         (None: the robot's first)."""
         from sim.world import build_world
 
-        self.world = build_world(replace(scene, objects=()), tags=False, visuals=False)
+        self.world = build_world(replace(scene, objects=()), tags=False, collision_only=True)
         self.robot, self.client = self.world.robot, self.world.client
         self.model = self.world.robot_model
         self._fixed_bodies = [*self.world.fixtures.values(), *(c.body for c in self.world.cabinets.values())]
@@ -145,7 +145,7 @@ class WorldChecker:
         hand = set(self.model.manipulator(manipulator).links)
         self._fingers = {i for i, n in self.robot.link_name.items() if n in hand}
         self._moved_by = link_ancestors(self.robot.id, self.client, self.model.joint_names)
-        self._tool_row = self.robot.link_index[self.tool] + 1
+        self._tool_row = self.robot.carrier_index(self.tool) + 1  # the tool frame rides on a PyBullet link
         # the body: links that only the base and vertical lifts move (their distance from the base's
         # axis is fixed, so the yaw moves them by that distance per radian, not by the arm's reach)
         self._others = np.ones(self.model.nq, dtype=bool)  # the joints other than the base and the lifts

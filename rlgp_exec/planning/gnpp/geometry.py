@@ -240,7 +240,7 @@ class FactorLib:
 
             client = p.connect(p.DIRECT)
             try:
-                robot = PyBulletRobot(self.model, client, visuals=False)
+                robot = PyBulletRobot(self.model, client, collision_only=True)
                 man = self.model.manipulator()
                 fingers = link_box_spheres(robot, self.model, self.q_nominal, [n for n in man.links if "finger" in n])
                 hand = link_box_spheres(robot, self.model, self.q_nominal, [n for n in man.links if "finger" not in n])

@@ -49,7 +49,7 @@ class Trajectories:
         model, q = lib.model, lib.q_nominal
         client = p.connect(p.DIRECT)
         try:
-            robot = PyBulletRobot(model, client, visuals=False)
+            robot = PyBulletRobot(model, client, collision_only=True)
             self.hand = finger_spheres(robot, model, q)
             # per arm: its spheres for the self-clearance rows, and what they clear (its trunk; the
             # other arms where they rest meanwhile)
