@@ -63,10 +63,13 @@ def to_actions(plan: Sequence[GroundAction]) -> list[Action] | str:
 
 
 def _site(
-    geo: SequenceGeometry, a: GroundAction, where: dict[str, FloatArray], openings: dict[str, float]
+    geo: SequenceGeometry, a: GroundAction, where: dict[str, FloatArray], openings: dict[str, float],
+    surfaces: dict[str, tuple[FloatArray, tuple[float, float], float]] | None = None,
 ) -> FloatArray:
     """Where the hand goes for action ``a`` (world frame [m]), objects at ``where``, drawers at ``openings``
-    (after the action for open/close: the knob where the drawer ends)."""
+    (after the action for open/close: the knob where the drawer ends). ``surfaces``: the place targets'
+    ``_target_surface`` by name, filled as they are asked for (the search asks for the same few thousands
+    of times)."""
     scene = geo.scene
     if a.name == "pick":
         o = scene.object(a.args[1])
@@ -77,13 +80,19 @@ def _site(
         v, o = geo.drawers[a.args[2]], scene.object(a.args[1])
         T, _ = v.drop_rect(max(openings[a.args[2]], v.travel), max(o.size[:2]) / 2)
         return np.array([T[0, 3], T[1, 3], v.rim_z(openings[a.args[2]]) + o.size[2]])
-    T, _, z = _target_surface(scene, a.args[2])
+    surface = surfaces.get(a.args[2]) if surfaces is not None else None
+    if surface is None:
+        surface = _target_surface(scene, a.args[2])
+        if surfaces is not None:
+            surfaces[a.args[2]] = surface
+    T, _, z = surface
     return np.array([T[0, 3], T[1, 3], z + scene.object(a.args[1]).size[2]])
 
 
 def rg_cost(geo: SequenceGeometry):
     """heuristicCost from the reachability graph (cached in its solution library)."""
     start = {o.name: np.asarray(o.pose[:3], float) for o in geo.scene.objects}
+    surfaces: dict[str, tuple[FloatArray, tuple[float, float], float]] = {}
 
     def after(a: GroundAction, openings: dict[str, float]) -> None:
         if a.name == "open_drawer":
@@ -99,13 +108,13 @@ def rg_cost(geo: SequenceGeometry):
             if a.name not in GEOMETRIC_ACTIONS:
                 return UNREACHABLE
             after(a, openings)
-            here = _site(geo, a, where, openings)
+            here = _site(geo, a, where, openings, surfaces)
             if a.name in ("place", "drop"):
                 where[a.args[1]] = here - np.array([0.0, 0.0, geo.scene.object(a.args[1]).size[2] / 2])
         if action.name not in GEOMETRIC_ACTIONS:
             return UNREACHABLE
         after(action, openings)
-        h = geo.heuristic_cost(here, _site(geo, action, where, openings))
+        h = geo.heuristic_cost(here, _site(geo, action, where, openings, surfaces))
         return PER_ACTION + (h if math.isfinite(h) else UNREACHABLE)
 
     return cost

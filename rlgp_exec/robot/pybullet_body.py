@@ -221,7 +221,7 @@ class PyBulletRobot:
             idx, ids = np.arange(qf.size), self._joint_ids
         # one batched call (a per-joint resetJointState loop costs ~1 ms on the PR2's 80+ joints)
         if ids:
-            p.resetJointStatesMultiDof(self.id, ids, [[float(v)] for v in qf[idx]], physicsClientId=self.client)
+            p.resetJointStatesMultiDof(self.id, ids, qf[idx].reshape(-1, 1).tolist(), physicsClientId=self.client)
         self._last_qf = qf
 
     def get_q(self) -> FloatArray:
