@@ -265,8 +265,8 @@ def _rows(model, rs: RobotSymbols, seg: Segment, hand, self_rows: tuple[ca.SX, F
 def _near(model, rs: RobotSymbols, seg: Segment) -> list[Box]:
     """The boxes of ``seg`` within REACH + CUTOFF of an arm sphere's centre or the tool at some
     warm-start waypoint: the rest cannot come near active and their rows are never built."""
-    frames = {rs.manip.tool_frame, *(f for f, _ in rs.spheres)}
-    pts = np.array([model.fk(q, f)[:3, 3] for q in seg.warm for f in frames])
+    frames = list(dict.fromkeys([rs.manip.tool_frame, *(f for f, _ in rs.spheres)]))
+    pts = np.array([T[:3, 3] for q in seg.warm for T in model.fk_many(q, frames)])  # one FK pass per waypoint
     out = []
     for b in seg.boxes:
         local = (np.linalg.inv(b.T) @ np.c_[pts, np.ones(len(pts))].T)[:3].T
