@@ -248,7 +248,7 @@ def prepare_urdf(cfg: RobotConfig) -> PreparedUrdf:
         str(lk.get("name")) for lk in robot.findall("link") if lk.find("collision") is not None
     )
 
-    # the two texts are kept on disk by what they are made from (serialising the PR2's tree takes ~0.1 s,
+    # the three texts are kept on disk by what they are made from (serialising the PR2's tree takes ~0.1 s,
     # every process that loads the robot paid it)
     inputs = json.dumps([source, list(vel), _WIDE, _FORMAT])
     bullet_path, pin_path, collision_path = _cache_paths(cfg.name, hashlib.sha256(inputs.encode()).hexdigest()[:16])

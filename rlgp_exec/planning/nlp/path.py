@@ -78,7 +78,7 @@ CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are
 # kept rows x checkpoints from which a row is left out at the checkpoints where it is far (``_Block.on``).
 # pick_place_pr2's first segment, a base move across the room: 1239 rows -> ~400, its solve 108 -> 59 ms
 # (seed 1). The HSR's segments (at most ~450 rows) solve no faster that way: their optima leave both the
-# guide and the line, and the re-solves that puts back the rows cost more than the smaller NLP saves
+# guide and the line, and the re-solves that put the rows back cost more than the smaller NLP saves
 # (table_clearing_hsr seeds 1-6: 11 re-solves against 3, level 3 median 0.26 -> 0.29 s)
 PRUNE_MIN = 600
 FEAS_TOL = 1e-4
@@ -293,8 +293,8 @@ class _Block:
     lb: FloatArray  # (len(keep), 2 T - 3) their lower bounds per checkpoint (``_checkpoints``; relaxed where
     # the warm start violates them)
     relaxed: int
-    # (len(keep), 2 T - 3) bool: the checkpoints at which each kept row is in the NLP: where it is near active at
-    # the warm start or on the line (and the checkpoints either side), in a block of PRUNE_MIN rows or more; all
+    # (len(keep), 2 T - 3) bool: the checkpoints at which each kept row is in the NLP: in a block of PRUNE_MIN rows
+    # x checkpoints or more, where it is near active at the warm start or on the line (and either side); else all
     on: np.ndarray
     # a segment whose warm start is a straight move (resampled: zero acceleration cost, the objective's least)
     # satisfying every row at every checkpoint (as bounded here: a segment that is not strict has its rows
