@@ -485,14 +485,13 @@ def _build(
     # 185.5 -> 188.4 m (one seed 2.9 m longer, one 4.4 m shorter); sorting_pr2 seeds 1-24 1.103 -> 0.946 and
     # 0.951 -> 0.926 s, 184.3 -> 181.9 m; table_clearing_hsr seeds 1-16: keyframes 1.15 -> 0.91 and 1.15 ->
     # 0.94 s (medians), 156.7 -> 156.9 m; every plan found
-    objective = cost
     x = ca.vertcat(ca.vec(Z), *(P for P, _, _ in aux))
     pp = ca.SX.sym("p", 0)
     g_all = _constraints(rows)
-    nlp = {"x": x, "p": pp, "f": objective, "g": g_all}
+    nlp = {"x": x, "p": pp, "f": cost, "g": g_all}
     opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 400,
                             "ipopt.tol": 1e-7, "ipopt.max_resto_iter": MAX_RESTO_ITER}
-    opts["hess_lag"] = _hess_lag(x, pp, objective, g_all, labels)
+    opts["hess_lag"] = _hess_lag(x, pp, cost, g_all, labels)
     opts["jac_g"] = ca.Function("jac_g", [x, pp], [g_all, _jacobian(g_all, x, n)])
     solver = ca.nlpsol("keyframes", "ipopt", nlp, {**opts, **LEAN})
     n_aux = 12 * len(aux)
