@@ -213,9 +213,13 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     daemon.start()
     print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {args.listen}", flush=True)
     try:
-        done.wait()
+        while not done.wait(0.2) and not daemon.dead.is_set():
+            pass
     finally:
         daemon.stop()
+    if daemon.fatal is not None:
+        print(f"daemon: {daemon.fatal}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -140,6 +140,8 @@ class Actor:
         self._last_xy: tuple[float, float] | None = None
         self._on_first_motion = on_first_motion
         self.on_phase: Callable[[int, int], None] | None = None  # progress: (phase index, phases)
+        #: inside the control loop: an e-stop request is latched by the loop itself within one cycle
+        self.looping = False
 
     # ------------------------------------------------------------------ state
     def measured_q(self, st: RobotState) -> FloatArray:
@@ -272,7 +274,23 @@ class Actor:
     ) -> ActOutcome:
         """Follow ``phases`` (timed as ``trajectories``); returns how far it got and why it stopped.
         ``world_check`` runs before each phase and every ``WORLD_CHECK_CYCLES`` during it."""
+        self.looping = True
+        try:
+            return self._run_phases(phases, trajectories, held, world_check)
+        finally:
+            self.looping = False
+
+    def _run_phases(
+        self,
+        phases: list[Phase],
+        trajectories: list[Trajectory | None],
+        held: str | None,
+        world_check: Callable[[int, Phase, RobotState], Violation | None] | None,
+    ) -> ActOutcome:
         for k, (ph, traj) in enumerate(zip(phases, trajectories, strict=True)):
+            if self.signals.estop.is_set():  # before a gripper command as much as before a motion
+                self._estop_now()
+                return ActOutcome(ActStatus.ESTOPPED, k, None, held)
             if self.on_phase is not None:
                 self.on_phase(k, len(phases))
             st = self._state()

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError, SceneError
-from rlgp_exec.executive.executive import Executive, TaskResult
+from rlgp_exec.executive.executive import Executive, TaskResult, TaskStatus
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.executive.states import ExecState, Transition
@@ -83,6 +83,10 @@ class Daemon:
         self._hal: Any = None
         self._objects: Any = None
         self._worker: threading.Thread | None = None
+        self.waiting: str | None = None  # what the next task waits for: "robot", "rearm", "reset"
+        self.recording_error: str | None = None
+        self.fatal: str | None = None  # why the worker died (then no goal runs any more)
+        self.dead = threading.Event()
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -149,6 +153,8 @@ class Daemon:
     def _on_goal(self, payload: bytes) -> dict[str, Any]:
         if self._stop.is_set():
             return _err("shutting down")
+        if self.fatal is not None:
+            return _err(f"not accepting goals: {self.fatal}; restart the daemon")
         try:
             req = json.loads(payload or b"null")
         except ValueError as e:
@@ -208,6 +214,10 @@ class Daemon:
         return {
             "ok": True,
             "state": ex.sm.state.value if ex else "starting",
+            "reason": ex.sm.reason if ex else "",
+            "waiting": self.waiting,
+            "fatal": self.fatal,
+            "recording_error": self.recording_error,
             "task": None if self.current is None else {"id": self.current.id, "goal": list(self.current.literals)},
             "queued": self.queue.qsize(),
             "served": self.served,
@@ -230,17 +240,64 @@ class Daemon:
 
     # ------------------------------------------------------------------ the worker
     def _work(self) -> None:
+        """One task at a time. Supervised: should anything escape a task, the robot is brought to rest,
+        FAULT is latched and published, and the daemon stops serving goals (``fatal``; the CLI exits 1)."""
         assert self.executive is not None
-        while not self._stop.is_set():
-            task = self.queue.get()
-            if task is None or self._stop.is_set():
-                break
-            self.current = task
-            result = self._run(task)
-            self.last = {"task": task.id, **result.as_dict()}
-            self.current = None
-            self.served += 1
-            self._publish()
+        try:
+            while not self._stop.is_set():
+                task = self.queue.get()
+                if task is None or self._stop.is_set():
+                    break
+                self.current = task
+                self.executive.signals.cancel.clear()  # a cancel before this task began is not for it
+                ready = self._wait_until_ready()
+                result = self._run(task) if ready is None else ready
+                self.last = {"task": task.id, **result.as_dict()}
+                self.current = None
+                self.served += 1
+                self._publish()
+        except BaseException as e:
+            self._die(e)
+
+    def _die(self, e: BaseException) -> None:
+        why = f"the executive's worker died: {type(e).__name__}: {e}"
+        log.critical("daemon: %s", why, exc_info=e)
+        self.fatal = why
+        assert self.executive is not None
+        try:
+            self.executive._fault(why)
+        except BaseException:
+            log.exception("daemon: could not latch FAULT")
+        self.dead.set()
+        self._publish()
+
+    def _wait_until_ready(self) -> TaskResult | None:
+        """Before a task runs: wait for fresh robot state and for the executive to leave a latched state
+        (an operator's rearm or reset), saying so on status; None when ready, else the task's result
+        (cancelled, or the daemon stopping)."""
+        ex = self.executive
+        assert ex is not None and self.current is not None
+        published = None
+        while True:
+            state = ex.sm.state
+            waiting = (
+                "rearm" if state is ExecState.ESTOPPED else "reset" if state is ExecState.FAULT
+                else None if ex.robot_ready() else "robot"
+            )
+            if waiting is None:
+                if published is not None:
+                    log.info("daemon: task %d starts (was waiting for %s)", self.current.id, published)
+                self.waiting = None
+                return None
+            if self._stop.is_set() or ex.signals.cancel.is_set():
+                self.waiting = None
+                what = "the daemon stopped" if self._stop.is_set() else "cancelled"
+                return TaskResult(TaskStatus.CANCELLED, f"{what} while waiting for {waiting}", self.current.literals)
+            if waiting != published:
+                log.warning("daemon: task %d waits for %s", self.current.id, _WAITING[waiting])
+                self.waiting, published = waiting, waiting
+                self._publish()
+            time.sleep(0.05)
 
     def _run(self, task: _Task) -> TaskResult:
         assert self.executive is not None
@@ -248,7 +305,11 @@ class Daemon:
         recorder = None
         if self.opts.record_dir is not None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
-            recorder = Recorder(self.opts.record_dir / f"task{task.id:04d}-{stamp}.mcap")
+            try:
+                recorder = Recorder(self.opts.record_dir / f"task{task.id:04d}-{stamp}.mcap")
+            except (OSError, RlgpError) as e:  # the task runs; the status says it is not recorded
+                log.error("daemon: task %d not recorded: %s", task.id, e)
+                self.recording_error = f"task {task.id}: {e}"
         ex.recorder = recorder
         ex.actor.recorder = recorder
         listener = None
@@ -256,8 +317,6 @@ class Daemon:
             listener = lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall)  # noqa: E731
             ex.sm.listeners.append(listener)
         try:
-            if ex.sm.state is ExecState.FAULT:
-                ex.reset()  # a new goal is the operator's acknowledgement
             return ex.run(list(task.literals))
         finally:
             if listener is not None:
@@ -265,6 +324,9 @@ class Daemon:
             ex.recorder = ex.actor.recorder = None
             if recorder is not None:
                 recorder.close()
+
+
+_WAITING = {"robot": "fresh robot state", "rearm": "an operator's rearm", "reset": "an operator's reset"}
 
 
 def _err(msg: str) -> dict[str, Any]:

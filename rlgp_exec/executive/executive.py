@@ -12,7 +12,8 @@ import enum
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals, gripp
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.recovery import release_knob
-from rlgp_exec.executive.states import ExecState, StateMachine
+from rlgp_exec.executive.states import LATCHED, ExecState, IllegalTransitionError, StateMachine
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
@@ -40,6 +41,7 @@ __all__ = ["Executive", "TaskResult", "TaskStatus"]
 log = logging.getLogger(__name__)
 S = ExecState
 PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before giving up
+ROBOT_WAIT_S = 10.0  # [s] a task starting without fresh robot state waits this long (a robot reconnecting)
 
 
 class TaskStatus(enum.Enum):
@@ -105,6 +107,7 @@ class Executive:
         tolerances: Tolerances | None = None,
         max_replans: int = 3,
         seed: int = 0,
+        robot_wait_s: float = ROBOT_WAIT_S,
     ) -> None:
         if scene.robot.name != hal.model.name:
             raise RlgpError(
@@ -114,6 +117,7 @@ class Executive:
         self.scene = scene  # the world model: updated by every SENSE
         self.objects = objects
         self.planner, self.seed, self.max_replans = planner, seed, max_replans
+        self.robot_wait_s = robot_wait_s
         self.memory = PlannerMemory()  # the planners' graphs, kept (and improved) across plans and replans
         self.recorder = recorder
         self.tol = tolerances or Tolerances()
@@ -130,51 +134,75 @@ class Executive:
 
     # ------------------------------------------------------------------ requests (any thread)
     def estop(self) -> None:
-        """Latch the e-stop: the control loop latches the HAL's within one cycle; when idle, at once."""
+        """Latch the e-stop: the control loop latches the HAL's within one cycle; outside it, at once."""
         self.signals.estop.set()
-        if self.sm.state in (S.IDLE, S.FAULT, S.SENSING, S.PLANNING):
+        if not self.actor.looping:
             self._latch_estop("e-stop requested")
 
     def rearm(self) -> None:
-        """Release the e-stop (explicitly): back to IDLE; the next task activates the HAL again."""
+        """Release the e-stop (an operator's request): back to IDLE; the next task activates the HAL again."""
         if self.sm.state is not S.ESTOPPED:
             raise RlgpError(f"rearm: the executive is {self.sm.state.name}, not ESTOPPED")
         if self.hal.lifecycle is Lifecycle.ESTOPPED:
             self.hal.rearm()
         self.signals.estop.clear()
-        self.sm.to(S.IDLE, "re-armed")
+        self.sm.release(S.IDLE, "re-armed")
 
     def cancel(self) -> None:
         self.signals.cancel.set()
 
     def reset(self) -> None:
-        """FAULT -> IDLE once someone has looked (the HAL must be healthy again to move)."""
-        if self.sm.state is S.FAULT:
-            self.sm.to(S.IDLE, "fault reset")
+        """FAULT -> IDLE once an operator has looked (an operator's request; the HAL must be healthy again to
+        move). With the e-stop still latched, FAULT -> ESTOPPED: rearm is the next request."""
+        if self.sm.state is not S.FAULT:
+            raise RlgpError(f"reset: the executive is {self.sm.state.name}, not FAULT")
+        if self.signals.estop.is_set() or self.hal.lifecycle is Lifecycle.ESTOPPED:
+            self.sm.to(S.ESTOPPED, "fault reset; the e-stop is still latched: rearm next")
+        else:
+            self.sm.release(S.IDLE, "fault reset")
+
+    def robot_ready(self) -> bool:
+        """Fresh robot state (the heartbeat holds): a task may start."""
+        self.actor.clock.keepalive()
+        try:
+            return self.hal.heartbeat_ok()
+        except Exception as e:  # a transport in trouble is simply not ready
+            log.debug("heartbeat: %s", e)
+            return False
 
     def _latch_estop(self, why: str) -> None:
         if self.hal.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE):
-            self.hal.estop()
-        if self.sm.state is not S.ESTOPPED:
-            self.sm.to(S.ESTOPPED, why)
+            try:
+                self.hal.estop()
+            except Exception as e:  # the executive's latch holds even when the transport does not answer
+                log.error("e-stop: the HAL refused it: %s", e)
+        self.sm.to(S.ESTOPPED, why)
 
     # ------------------------------------------------------------------ stages
     def _event(self, kind: str, **data: object) -> None:
         if self.recorder is not None:
             self.recorder.write("/events", {"kind": kind, **data})
 
-    def _robot_state(self) -> RobotState:
-        self.actor.clock.keepalive()
-        if not self.hal.heartbeat_ok():
-            raise _FaultError(f"no fresh robot state within {self.hal.heartbeat_timeout} s")
+    def _robot_state(self, wait_s: float = 0.0) -> RobotState:
+        """The robot's state; with ``wait_s`` [s], waits that long for a fresh one (a robot reconnecting),
+        then fails the task; without, stale state is a FAULT (the robot was lost while in use)."""
+        end = time.monotonic() + wait_s
+        while not self.robot_ready():
+            if time.monotonic() >= end:
+                why = f"no fresh robot state within {self.hal.heartbeat_timeout} s"
+                if wait_s > 0.0:
+                    raise _FailedError(f"{why} (waited {wait_s:.0f} s for the robot; nothing moved)")
+                raise _FaultError(why)
+            time.sleep(0.05)
         st = self.hal.read_state()
         if st is None:
             raise _FaultError("no robot state received")
         return st
 
-    def sense(self) -> Scene:
-        """Update the world model from the robot's state and the object source."""
-        st = self._robot_state()
+    def sense(self, wait_s: float = 0.0) -> Scene:
+        """Update the world model from the robot's state and the object source (``wait_s``: see
+        ``_robot_state``)."""
+        st = self._robot_state(wait_s)
         poses = self.objects.poses()
         self._record_detections(poses)
         self.openings = drawer_openings(self.scene, poses)
@@ -267,146 +295,169 @@ class Executive:
 
     # ------------------------------------------------------------------ the task
     def run(self, goal_literals: Sequence[str] | None = None) -> TaskResult:
-        """Achieve ``goal_literals`` (default: the scene's goal). Returns when done, failed or stopped."""
+        """Achieve ``goal_literals`` (default: the scene's goal). Returns when done, failed or stopped.
+
+        Never raises: an unexpected exception anywhere in the task brings the robot to rest and ends in
+        FAULT with its reason (recorded, and published by the state machine's listeners)."""
         t_start = time.perf_counter()
         self.signals.cancel.clear()
         first_motion: list[float] = []
         self.actor._on_first_motion = lambda: first_motion.append(time.perf_counter() - t_start)
-        stats: dict[str, float] = {"plans": 0, "replans": 0, "planning_time_s": 0.0, "execution_time_s": 0.0}
-        d0 = self.actor.base_distance_m
-        goal_text: tuple[str, ...] = (
+        prog = _Progress(goal_text=(
             tuple(goal_literals) if goal_literals is not None else tuple(str(x) for x in self.scene.goal.literals)
-        )
-        actions: tuple[str, ...] = ()
-        executed: list[str] = []
+        ), d0=self.actor.base_distance_m)
 
-        def result(status: TaskStatus, detail: str, verified: bool = False) -> TaskResult:
+        def result(end: _End) -> TaskResult:
             r = TaskResult(
-                status,
-                detail,
-                goal_text,
-                actions,
-                int(stats["plans"]),
-                int(stats["replans"]),
-                stats["planning_time_s"],
-                stats["execution_time_s"],
+                end.status,
+                end.detail,
+                prog.goal_text,
+                prog.actions,
+                prog.plans,
+                prog.replans,
+                prog.planning_time_s,
+                prog.execution_time_s,
                 first_motion[0] if first_motion else None,
-                self.actor.base_distance_m - d0,
-                verified,
-                tuple(executed),
+                self.actor.base_distance_m - prog.d0,
+                end.verified,
+                tuple(prog.executed),
             )
             self._event("result", **r.as_dict())
-            log.info("task %s: %s", status.value, detail)
+            log.info("task %s: %s", end.status.value, end.detail)
             return r
 
-        if self.sm.state is S.ESTOPPED:
-            return result(TaskStatus.ESTOPPED, "e-stop latched: rearm first")
-        if self.sm.state is S.FAULT:
-            return result(TaskStatus.FAULT, "in FAULT: reset first")
-        if self.sm.state is not S.IDLE:
-            return result(TaskStatus.FAILED, f"busy ({self.sm.state.name})")
+        state = self.sm.state
+        if state is S.ESTOPPED:
+            return result(_End(TaskStatus.ESTOPPED, "e-stop latched: rearm first"))
+        if state is S.FAULT:
+            return result(_End(TaskStatus.FAULT, f"in FAULT ({self.sm.reason}): reset first"))
+        if state is not S.IDLE:
+            return result(_End(TaskStatus.FAILED, f"busy ({state.name})"))
         try:
-            self.sm.to(S.SENSING, f"task {' '.join(goal_text)}")
-            try:
-                goal = self._goal(goal_literals)
-            except SceneError as e:
-                self.sm.to(S.IDLE, "invalid goal")
-                return result(TaskStatus.INVALID_GOAL, str(e))
-            self._event("goal", literals=[str(g) for g in goal.literals])
-            self.sense()
-            for attempt in range(self.max_replans + 1):
-                if self.signals.estop.is_set():
-                    self._latch_estop("e-stop requested")
-                    return result(TaskStatus.ESTOPPED, "e-stop")
-                if self.signals.cancel.is_set():
-                    self.sm.to(S.IDLE, "cancelled")
-                    return result(TaskStatus.CANCELLED, "cancelled before motion")
-                if self.knob is not None:  # stopped while driving a drawer: let go first
-                    stopped = self._release_knob(self.knob, stats)
-                    if stopped is not None:
-                        return result(*stopped)
-                unmet = self._unmet(goal)
-                if not unmet:
-                    self.sm.to(S.IDLE, "goal holds")
-                    if self.objects.senses:
-                        return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
-                    return result(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)")
-                self.sm.to(S.PLANNING, f"attempt {attempt + 1}")
-                scene = replace(self.scene, goal=goal)
-                from rlgp_exec.planning.registry import plan as run_planner
-
-                for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
-                    plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory)
-                    stats["plans"] += 1
-                    stats["planning_time_s"] += plan.planning_time_s
-                    if plan.success:
-                        break
-                    self._event("plan_failed", planner=self.planner, seed=self.seed + 101 * attempt + k,
-                                time_s=plan.planning_time_s, reason=plan.reason)
-                self.last_plan = plan
-                if self.recorder is not None:
-                    self.recorder.write(
-                        "/plan",
-                        {
-                            **plan.summary(),
-                            "phases": [
-                                {"path": ph.path, "held": ph.held, "grasp": ph.grasp, "release": ph.release}
-                                for ph in plan.phases
-                            ],
-                        },
-                    )
-                if not plan.success:
-                    self.sm.to(S.IDLE, "no plan")
-                    return result(_plan_failure(plan.reason), f"{self.planner}: {plan.reason}")
-                actions = plan.actions
-                trajectories = self._time(plan)
-                self.sm.to(S.EXECUTING, " ".join(plan.actions))
-                out = self._act(plan, trajectories, scene)
-                stats["execution_time_s"] += out[1]
-                outcome = out[0]
-                executed += _carried_out(plan, outcome.phases_done)
-                self._hand_after(plan, outcome, scene)
-                if outcome.status is ActStatus.ESTOPPED:
-                    self._latch_estop("e-stop during motion")
-                    return result(TaskStatus.ESTOPPED, f"e-stop during phase {outcome.phases_done}")
-                if outcome.status is ActStatus.CANCELLED:
-                    self.sm.to(S.IDLE, "cancelled")
-                    return result(TaskStatus.CANCELLED, f"cancelled during phase {outcome.phases_done}; at rest")
-                if outcome.status is ActStatus.DONE:
-                    self.sm.to(S.SENSING, "verify")
-                    self.sense()
-                    unmet = self._unmet(goal)
-                    if not self.objects.senses:
-                        self.sm.to(S.IDLE, "executed (not verified: no object sensing)")
-                        return result(TaskStatus.SUCCEEDED, "executed as planned; goal not verified (poses not sensed)")
-                    if not unmet:
-                        self.sm.to(S.IDLE, "goal verified")
-                        return result(TaskStatus.SUCCEEDED, "goal holds in the sensed world", verified=True)
-                    self.sm.to(S.RECOVERING, "goal not met: " + "; ".join(unmet))
-                    self._event("violation", monitor="verify", reaction="replan", detail="; ".join(unmet))
-                else:
-                    v = outcome.violation
-                    assert v is not None
-                    self._event("violation", monitor=v.monitor, reaction=v.reaction.value, detail=v.detail)
-                    if v.reaction is Reaction.FAULT:
-                        raise _FaultError(str(v))
-                    self.sm.to(S.RECOVERING, str(v))
-                stats["replans"] += 1
-                self.sm.to(S.SENSING, "replan from the current state")
-                self.sense()
-            self.sm.to(S.IDLE, "replans exhausted")
-            return result(TaskStatus.FAILED, f"goal not reached after {self.max_replans} replans")
+            end = self._task(goal_literals, prog)
+        except IllegalTransitionError as e:
+            if not e.preempted:
+                end = self._internal_error(e)
+            else:  # latched by another request meanwhile: the task ends as that latch
+                end = _End(_LATCH_STATUS[e.source], f"{e.source.value} while {prog.stage}: {self.sm.reason}")
         except _FaultError as e:
             self._fault(str(e))
-            return result(TaskStatus.FAULT, str(e))
+            end = _End(TaskStatus.FAULT, str(e))
         except _FailedError as e:
-            self.sm.to(S.IDLE, str(e))
-            return result(TaskStatus.FAILED, str(e))
+            end = _End(TaskStatus.FAILED, str(e))
         except SceneError as e:  # the sensed world is not plannable (an object fell, ...)
-            self.sm.to(S.IDLE, "bad sensed world")
-            return result(TaskStatus.FAILED, f"sensed world: {e}")
+            end = _End(TaskStatus.FAILED, f"sensed world: {e}", "bad sensed world")
+        except Exception as e:
+            end = self._internal_error(e)
+        if end.status not in _LATCH_STATUS.values():
+            final = self.sm.settle(S.IDLE, end.reason or end.detail)
+            if final in LATCHED:  # an e-stop or fault latched as the task ended: it ends as that latch
+                end = _End(_LATCH_STATUS[final], f"{final.value}: {self.sm.reason} (the task: {end.detail})")
+        return result(end)
 
-    def _release_knob(self, cabinet: str, stats: dict[str, float]) -> tuple[TaskStatus, str] | None:
+    def _task(self, goal_literals: Sequence[str] | None, prog: _Progress) -> _End:
+        """The task from IDLE; how it ends (the caller settles the state machine back to IDLE)."""
+        sm = self.sm
+        sm.to(S.SENSING, f"task {' '.join(prog.goal_text)}")
+        try:
+            goal = self._goal(goal_literals)
+        except SceneError as e:
+            return _End(TaskStatus.INVALID_GOAL, str(e), "invalid goal")
+        self._event("goal", literals=[str(g) for g in goal.literals])
+        self.sense(wait_s=self.robot_wait_s)
+        for attempt in range(self.max_replans + 1):
+            if self.signals.estop.is_set():
+                self._latch_estop("e-stop requested")
+                return _End(TaskStatus.ESTOPPED, "e-stop")
+            if self.signals.cancel.is_set():
+                return _End(TaskStatus.CANCELLED, "cancelled before motion", "cancelled")
+            if self.knob is not None:  # stopped while driving a drawer: let go first
+                stopped = self._release_knob(self.knob, prog)
+                if stopped is not None:
+                    return stopped
+            unmet = self._unmet(goal)
+            if not unmet:
+                if self.objects.senses:
+                    return _End(TaskStatus.SUCCEEDED, "goal holds in the sensed world", "goal holds", True)
+                return _End(TaskStatus.SUCCEEDED, "goal holds in the world model (poses not sensed)", "goal holds")
+            prog.stage = "planning"
+            sm.to(S.PLANNING, f"attempt {attempt + 1}")
+            scene = replace(self.scene, goal=goal)
+            from rlgp_exec.planning.registry import plan as run_planner
+
+            for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
+                plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory)
+                prog.plans += 1
+                prog.planning_time_s += plan.planning_time_s
+                if plan.success or self.signals.estop.is_set():
+                    break
+                self._event("plan_failed", planner=self.planner, seed=self.seed + 101 * attempt + k,
+                            time_s=plan.planning_time_s, reason=plan.reason)
+            self.last_plan = plan
+            if self.recorder is not None:
+                self.recorder.write(
+                    "/plan",
+                    {
+                        **plan.summary(),
+                        "phases": [
+                            {"path": ph.path, "held": ph.held, "grasp": ph.grasp, "release": ph.release}
+                            for ph in plan.phases
+                        ],
+                    },
+                )
+            if not plan.success:
+                return _End(_plan_failure(plan.reason), f"{self.planner}: {plan.reason}", "no plan")
+            prog.actions = plan.actions
+            if self.signals.cancel.is_set():  # cancelled while planning: no motion starts
+                return _End(TaskStatus.CANCELLED, "cancelled before motion", "cancelled")
+            trajectories = self._time(plan)
+            prog.stage = "executing"
+            sm.to(S.EXECUTING, " ".join(plan.actions))
+            outcome, seconds = self._act(plan, trajectories, scene)
+            prog.execution_time_s += seconds
+            prog.executed += _carried_out(plan, outcome.phases_done)
+            self._hand_after(plan, outcome, scene)
+            if outcome.status is ActStatus.ESTOPPED:
+                self._latch_estop("e-stop during motion")
+                return _End(TaskStatus.ESTOPPED, f"e-stop during phase {outcome.phases_done}")
+            if outcome.status is ActStatus.CANCELLED:
+                return _End(TaskStatus.CANCELLED, f"cancelled during phase {outcome.phases_done}; at rest", "cancelled")
+            if outcome.status is ActStatus.DONE:
+                prog.stage = "verifying"
+                sm.to(S.SENSING, "verify")
+                self.sense()
+                unmet = self._unmet(goal)
+                if not self.objects.senses:
+                    return _End(
+                        TaskStatus.SUCCEEDED,
+                        "executed as planned; goal not verified (poses not sensed)",
+                        "executed (not verified: no object sensing)",
+                    )
+                if not unmet:
+                    return _End(TaskStatus.SUCCEEDED, "goal holds in the sensed world", "goal verified", True)
+                sm.to(S.RECOVERING, "goal not met: " + "; ".join(unmet))
+                self._event("violation", monitor="verify", reaction="replan", detail="; ".join(unmet))
+            else:
+                v = outcome.violation
+                assert v is not None
+                self._event("violation", monitor=v.monitor, reaction=v.reaction.value, detail=v.detail)
+                if v.reaction is Reaction.FAULT:
+                    raise _FaultError(str(v))
+                sm.to(S.RECOVERING, str(v))
+            prog.replans += 1
+            prog.stage = "sensing"
+            sm.to(S.SENSING, "replan from the current state")
+            self.sense()
+        return _End(TaskStatus.FAILED, f"goal not reached after {self.max_replans} replans", "replans exhausted")
+
+    def _internal_error(self, e: BaseException) -> _End:
+        """An exception no stage expects: log it whole, bring the robot to rest, latch FAULT with its reason."""
+        log.error("executive: internal error", exc_info=e)
+        why = f"internal error: {type(e).__name__}: {e}"
+        self._fault(why)
+        return _End(TaskStatus.FAULT, why)
+
+    def _release_knob(self, cabinet: str, prog: _Progress) -> _End | None:
         """Open the hand on ``cabinet``'s knob and back off (``recovery.release_knob``), in RECOVERING, then
         sense again. None when the hand is free; else how the task ends (e-stop, cancel, refused)."""
         self.sm.to(S.RECOVERING, f"let go of the knob of {cabinet!r}")
@@ -415,14 +466,13 @@ class Executive:
             raise _FailedError(f"the hand holds the knob of {cabinet!r} and cannot let go: {release.reason}")
         self._event("recovery", action="release_knob", cabinet=cabinet)
         outcome, seconds = self._act(release, self._time(release), self.scene)
-        stats["execution_time_s"] += seconds
+        prog.execution_time_s += seconds
         self._hand_after(release, outcome, self.scene)
         if outcome.status is ActStatus.ESTOPPED:
             self._latch_estop("e-stop while letting go of a knob")
-            return TaskStatus.ESTOPPED, "e-stop while letting go of the knob"
+            return _End(TaskStatus.ESTOPPED, "e-stop while letting go of the knob")
         if outcome.status is ActStatus.CANCELLED:
-            self.sm.to(S.IDLE, "cancelled")
-            return TaskStatus.CANCELLED, "cancelled while letting go of the knob; at rest"
+            return _End(TaskStatus.CANCELLED, "cancelled while letting go of the knob; at rest", "cancelled")
         if outcome.status is ActStatus.VIOLATION:
             v = outcome.violation
             assert v is not None
@@ -460,15 +510,47 @@ class Executive:
                 self.knob = a.target if a.grasp else None
 
     def _fault(self, why: str) -> None:
+        """Bring the robot to rest and latch FAULT; never raises (it is the last line of supervision)."""
         log.error("executive fault: %s", why)
-        self._event("fault", detail=why)
+        try:
+            self._event("fault", detail=why)
+        except Exception:
+            log.exception("fault event not recorded")
         if self.hal.lifecycle is Lifecycle.ACTIVE:
             try:
                 self.hal.deactivate()  # hold position, stop the base (if the robot still listens)
-            except RlgpError as e:
-                log.warning("deactivate during fault: %s", e)
-        if self.sm.state is not S.FAULT:
-            self.sm.to(S.FAULT, why)
+            except Exception as e:
+                log.error("deactivate during fault failed (%s): latching the HAL's e-stop", e)
+                try:
+                    self.hal.estop()
+                except Exception as e2:
+                    log.error("e-stop during fault failed: %s", e2)
+        self.sm.to(S.FAULT, why)  # allowed from every state
+
+
+@dataclass
+class _Progress:
+    """What a task has done so far (for its result)."""
+
+    goal_text: tuple[str, ...]
+    d0: float  # [m] the base's distance travelled when the task began
+    stage: str = "sensing"  # for messages: what the task was doing
+    actions: tuple[str, ...] = ()  # the last plan's
+    executed: list[str] = field(default_factory=list)
+    plans: int = 0
+    replans: int = 0
+    planning_time_s: float = 0.0
+    execution_time_s: float = 0.0
+
+
+class _End(NamedTuple):
+    status: TaskStatus
+    detail: str
+    reason: str = ""  # the transition's reason when the task settles to IDLE (default: detail)
+    verified: bool = False
+
+
+_LATCH_STATUS = {S.ESTOPPED: TaskStatus.ESTOPPED, S.FAULT: TaskStatus.FAULT}
 
 
 def _carried_out(plan: Plan, phases_done: int) -> list[str]:
