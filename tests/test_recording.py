@@ -4,6 +4,7 @@ fuzzed records are refused with a RecordingError naming the record, and a record
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import random
@@ -25,7 +26,7 @@ from rlgp_exec.cli import main
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive import ExecState, Recorder, StateMachine, read_recording
 from rlgp_exec.executive.recorder import MAGIC, MAX_RECORD, RecordingError
-from rlgp_exec.executive.replay import load_replay, replay
+from rlgp_exec.executive.replay import ReplayInput, load_replay, replay
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene, scene_to_dict
 
@@ -273,17 +274,53 @@ def test_chunked_files_and_trailing_bytes_are_refused(tmp_path):
         read_recording(tail)
 
 
+JUNK = (None, True, "x", "0.1", -1, 10**30, 1e308, float("nan"), [], {}, [[]], {"a": 1}, [1.0] * 3, [[0.0] * 4] * 3)
+
+
+def _mutate_json(rng: random.Random, obj: object) -> None:
+    """Delete or replace (by a value of another type or shape) one item of ``obj``: a top-level field half
+    the time, else one up to 3 levels down."""
+    node = obj
+    for _ in range(0 if rng.random() < 0.5 else rng.randint(1, 3)):
+        kids = [k for k in (node.values() if isinstance(node, dict) else node) if isinstance(k, dict | list) and k]
+        if not kids:
+            break
+        node = rng.choice(kids)
+    if isinstance(node, dict) and node:
+        key = rng.choice(list(node))
+    elif isinstance(node, list) and node:
+        key = rng.randrange(len(node))
+    else:
+        return
+    if rng.random() < 0.4:
+        del node[key]  # type: ignore[arg-type]
+    else:
+        node[key] = copy.deepcopy(rng.choice(JUNK))  # type: ignore[index]
+
+
+def _check_input(inp: ReplayInput) -> None:
+    """What the replay takes from load_replay is what it is declared to be."""
+    assert all(isinstance(t, str) for t in inp.transitions + inp.results)
+    for st in inp.states:
+        assert all(type(v) is float and np.isfinite(v) for v in (st.stamp, *st.base, *st.joints.values()))
+        assert all(isinstance(n, str) for n in st.joints)
+    for _, poses in inp.detections:
+        assert all(T.shape == (4, 4) and np.isfinite(T).all() for T in poses.values())
+
+
 def test_fuzzed_recordings_raise_only_recording_errors_in_bounded_time_and_memory(recording, tmp_path):
     data = recording.read_bytes()
+    full = read_recording(recording)
     rng = random.Random(20240601)
     ends = _record_ends(data)
     path = tmp_path / "fuzz.mcap"
-    outcomes = {"read": 0, "refused": 0}
+    outcomes = {"read": 0, "refused": 0, "replayed": 0}
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     worst = 0.0
-    for i in range(600):
+    replayed_topics = [k for k, (tp, _, _) in enumerate(full.messages) if tp != "/command" and tp != "/plan"]
+    for i in range(800):
         b = bytearray(data)
-        kind = i % 6
+        kind = min(i % 10, 7)  # 7, a damaged message, 3 times in 10
         if kind == 0:  # bit flips
             for _ in range(rng.randint(1, 8)):
                 b[rng.randrange(len(b))] ^= 1 << rng.randrange(8)
@@ -305,20 +342,34 @@ def test_fuzzed_recordings_raise_only_recording_errors_in_bounded_time_and_memor
             old = struct.unpack_from("<Q", b, ends[k] + 1)[0]
             new = rng.choice([rng.getrandbits(64), max(0, old + rng.randint(-20, 20))])
             struct.pack_into("<Q", b, ends[k] + 1, new)
-        else:  # random bytes over a span
+        elif kind == 5:  # random bytes over a span
             s = rng.randrange(len(b))
             n = rng.randint(1, 32)
             b[s : s + n] = rng.randbytes(n)
+        elif kind == 6:  # bits flipped in a record's fields (ids, string lengths, times), not its payload
+            k = rng.randrange(len(ends) - 1)
+            b[ends[k] + 9 + rng.randrange(min(24, ends[k + 1] - ends[k] - 9))] ^= 1 << rng.randrange(8)
+        else:  # a message the replay reads, its JSON with a field missing or of another type or shape, re-framed
+            o = full.offsets[rng.choice(replayed_topics)]
+            n = struct.unpack_from("<Q", b, o + 1)[0]
+            msg = json.loads(bytes(b[o + 31 : o + 9 + n]))
+            _mutate_json(rng, msg)
+            payload = json.dumps(msg).encode()
+            b[o : o + 9 + n] = struct.pack("<BQ", 0x05, 22 + len(payload)) + b[o + 9 : o + 31] + payload
         path.write_bytes(bytes(b))
         t = time.perf_counter()
         try:
-            load_replay(path)
+            inp = load_replay(path)
+            _check_input(inp)
             outcomes["read"] += 1
+            if outcomes["replayed"] < 12 and kind == 7:  # PyBullet takes what the checks let through
+                replay(path, step=1)
+                outcomes["replayed"] += 1
         except RlgpError as e:  # RecordingError, or a SceneError for a damaged /scene: the project's own
             assert str(path) in str(e), e
             outcomes["refused"] += 1
         worst = max(worst, time.perf_counter() - t)
-    assert outcomes["read"] > 50 and outcomes["refused"] > 50, outcomes  # both ways exercised
+    assert outcomes["read"] > 50 and outcomes["refused"] > 50 and outcomes["replayed"] == 12, outcomes
     assert worst < 1.0, f"one mutant took {worst:.2f} s"
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 200_000  # [kB]
 

@@ -18,6 +18,7 @@ every malformed record is a :class:`RecordingError` naming the file, the record'
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import math
@@ -162,21 +163,22 @@ class Recorder:
             self.n_bytes += done
             buf.release()
             self._failure = f"{e.strerror or e} (errno {e.errno})"
-            return self._stop(self._failure)
+            return self._stop(self._failure, owned=e.errno != errno.EBADF)
         self.n_bytes += done
         buf.release()
         del self._spool.buf[:]
         return None
 
-    def _stop(self, why: str) -> str:
+    def _stop(self, why: str, owned: bool = True) -> str:
         assert self._fd is not None
-        with contextlib.suppress(OSError):  # the descriptor may be the one that failed: released either way
-            os.close(self._fd)
+        if owned:  # (not owned: closed under the recorder; its number may be another file's by now)
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
         self._fd = None
         self._spool.buf.clear()
         self.error = (
-            f"recording {self.path} stopped: {why}; the file keeps its first {self.n_bytes} bytes "
-            f"({self.n_messages} messages were given to it)"
+            f"recording {self.path} stopped at message {self.n_messages}: {why}; the file keeps the "
+            f"{self.n_bytes} bytes written before it (a truncated recording)"
         )
         return self.error
 
@@ -206,6 +208,12 @@ class Recorder:
             self._report(reason)
             return
         log.info("recording %s: %d messages", self.path, self.n_messages)
+
+    def __del__(self) -> None:  # never closed: release the descriptor (the file reads as unfinished)
+        fd = getattr(self, "_fd", None)
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
     def __enter__(self) -> Recorder:
         return self
