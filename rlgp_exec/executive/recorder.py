@@ -246,10 +246,8 @@ class Recording:
             return "complete"
         if self.truncated_at is None or self.truncated_at >= self.size:
             return f"unfinished: it ends at byte {self.size} after a complete record, without the footer"
-        return (
-            f"truncated at byte {self.truncated_at}: the record there is cut off "
-            f"({self.size - self.truncated_at} of its bytes present)"
-        )
+        cut = self.truncated_at
+        return f"truncated at byte {cut}: the record there is cut off after {self.size - cut} bytes"
 
 
 class _MalformedError(Exception):
