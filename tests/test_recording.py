@@ -434,8 +434,11 @@ def test_dev_full_is_refused_when_the_recorder_opens_it():
         Recorder("/dev/full")
 
 
-def test_a_closed_descriptor_stops_the_recording_and_the_callback_may_write(tmp_path, caplog):
-    path = tmp_path / "closed.mcap"
+@pytest.mark.parametrize("fault", ["closed", "/dev/full"])
+def test_a_failing_descriptor_stops_the_recording_and_the_callback_may_write(tmp_path, caplog, fault):
+    """The recorder's descriptor closed under it (EBADF), or made /dev/full's (ENOSPC from the kernel,
+    as a disk that fills up mid-run) after the /scene message."""
+    path = tmp_path / "failing.mcap"
     calls: list[str] = []
     rec = Recorder(path)
 
@@ -447,7 +450,12 @@ def test_a_closed_descriptor_stops_the_recording_and_the_callback_may_write(tmp_
     rec.on_error = on_error
     rec.write("/scene", scene_to_dict(load_scene(SCENE)))
     (fd,) = [int(n) for n in os.listdir("/proc/self/fd") if os.path.realpath(f"/proc/self/fd/{n}") == str(path)]
-    os.close(fd)
+    if fault == "closed":
+        os.close(fd)
+    else:
+        full = os.open("/dev/full", os.O_WRONLY)
+        os.dup2(full, fd)
+        os.close(full)
     done = threading.Event()
 
     def control_loop() -> None:
@@ -458,7 +466,10 @@ def test_a_closed_descriptor_stops_the_recording_and_the_callback_may_write(tmp_
 
     threading.Thread(target=control_loop, daemon=True).start()
     assert done.wait(10.0), "a write blocked (the callback ran under the recorder's lock?)"
-    assert len(calls) == 1 and "Bad file descriptor" in calls[0] and rec.error == calls[0]
+    if fault == "/dev/full":  # the recorder released its descriptor
+        assert os.path.realpath(f"/proc/self/fd/{fd}") != "/dev/full"
+    assert len(calls) == 1 and rec.error == calls[0]
+    assert ("Bad file descriptor" if fault == "closed" else "No space left on device") in calls[0]
     errors = [r for r in caplog.records if r.levelname == "ERROR" and r.name.endswith("recorder")]
     assert [r.getMessage() for r in errors][:1] == [rec.error] and "callback failed" in errors[1].getMessage()
     assert len(errors) == 2
