@@ -179,11 +179,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.replay import replay
 
-    report = replay(args.file, png=args.png)
+    report = replay(args.file, png=args.png)  # a bad recording: a RecordingError, exit 2 (main)
     print(report.text())
     _write_json(
         args.json,
-        {"complete": report.complete, "messages": report.messages, "states": report.states,
+        {"complete": report.complete, "ending": report.ending, "truncated_at": report.truncated_at,
+         "messages": report.messages, "states": report.states,
          "duration_s": report.duration_s, "base_distance_m": report.base_distance_m,
          "transitions": list(report.transitions), "results": list(report.results),
          "collisions": list(report.collisions)},
