@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -277,3 +278,27 @@ def test_a_worker_that_dies_latches_fault_refuses_goals_and_says_why(daemon, mon
     assert st["state"] == "fault" and "RuntimeError: executive bug" in st["fatal"], st
     r = _goal(daemon)
     assert r["ok"] is False and "restart the daemon" in r["error"]
+
+
+def test_a_recording_that_cannot_be_written_stops_and_the_task_goes_on(sim):
+    """The disk fills mid-motion: the recording stops (what reached the file still reads), the result and
+    ``recording_error`` say so, and the task carries on to its goal as if nothing were recorded."""
+    ex, _, rec = sim
+    cycle = ex.actor.cycle
+    full = os.open("/dev/full", os.O_WRONLY)
+
+    def filling_cycle(*a):
+        if ex.actor.cycles == 60 and rec.error is None:
+            os.dup2(full, rec._fd)  # the recorder's descriptor now answers ENOSPC
+        return cycle(*a)
+
+    ex.actor.cycle = filling_cycle  # type: ignore[method-assign]
+    try:
+        result = ex.run()
+    finally:
+        os.close(full)
+    assert result.status is TaskStatus.SUCCEEDED and result.verified, result.detail
+    assert result.recording_error is not None and "No space left" in result.recording_error
+    assert ex.recording_error == result.recording_error == rec.error
+    R = read_recording(rec.path)
+    assert not R.complete and len(R.topic("/robot_state")) > 10

@@ -99,6 +99,7 @@ class Daemon:
             self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed
         )
         self.executive.sm.listeners.append(self._on_transition)
+        self.executive.on_recording_error = self._on_recording_error
         self.executive.actor.on_phase = self._on_phase
         self._session = zenoh.open(session_config(listen=self.opts.listen))
         self._pub = self._session.declare_publisher(f"{self.base}/status")
@@ -234,6 +235,10 @@ class Daemon:
     def _on_transition(self, tr: Transition) -> None:
         self._publish()
 
+    def _on_recording_error(self, why: str) -> None:
+        self.recording_error = f"task {self.current.id if self.current else '?'}: {why}"
+        self._publish()
+
     def _on_phase(self, k: int, n: int) -> None:
         self.progress = {"phase": k + 1, "phases": n}
         self._publish()
@@ -310,18 +315,11 @@ class Daemon:
             except (OSError, RlgpError) as e:  # the task runs; the status says it is not recorded
                 log.error("daemon: task %d not recorded: %s", task.id, e)
                 self.recording_error = f"task {task.id}: {e}"
-        ex.recorder = recorder
-        ex.actor.recorder = recorder
-        listener = None
-        if recorder is not None:
-            listener = lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall)  # noqa: E731
-            ex.sm.listeners.append(listener)
+        ex.attach(recorder)
         try:
             return ex.run(list(task.literals))
         finally:
-            if listener is not None:
-                ex.sm.listeners.remove(listener)
-            ex.recorder = ex.actor.recorder = None
+            ex.attach(None)
             if recorder is not None:
                 recorder.close()
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
@@ -22,7 +22,7 @@ from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals, gripp
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.recovery import release_knob
-from rlgp_exec.executive.states import LATCHED, ExecState, IllegalTransitionError, StateMachine
+from rlgp_exec.executive.states import LATCHED, ExecState, IllegalTransitionError, StateMachine, Transition
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
@@ -70,6 +70,7 @@ class TaskResult:
     #: the actions carried out, over every plan in order (a replan's too): an action counts once the phase that
     #: ends at its keyframe has run, with its gripper event
     executed: tuple[str, ...] = ()
+    recording_error: str | None = None  # the run's recording stopped early (a full disk, ...): why
 
     @property
     def ok(self) -> bool:
@@ -89,6 +90,7 @@ class TaskResult:
             "base_distance_m": self.base_distance_m,
             "verified": self.verified,
             "executed": list(self.executed),
+            "recording_error": self.recording_error,
         }
 
 
@@ -119,13 +121,16 @@ class Executive:
         self.planner, self.seed, self.max_replans = planner, seed, max_replans
         self.robot_wait_s = robot_wait_s
         self.memory = PlannerMemory()  # the planners' graphs, kept (and improved) across plans and replans
-        self.recorder = recorder
         self.tol = tolerances or Tolerances()
         self.signals = Signals()
         self.sm = StateMachine()
-        if recorder is not None:
-            self.sm.listeners.append(lambda tr: recorder.write("/transitions", tr.as_dict(), tr.t_wall))
-        self.actor = Actor(hal, self.signals, recorder, period, self.tol)
+        self.sm.listeners.append(self._record_transition)
+        self.recorder: Recorder | None = None
+        self.recording_error: str | None = None  # why the last recording stopped early
+        #: called (from the thread that was writing) when a recording stops on a write error
+        self.on_recording_error: Callable[[str], None] | None = None
+        self.actor = Actor(hal, self.signals, None, period, self.tol)
+        self.attach(recorder)
         self.held: str | None = None  # the object in the hand
         self.T_tool_obj: FloatArray | None = None  # how it sits in the hand, as grasped (4, 4)
         self.knob: str | None = None  # the cabinet whose knob the hand holds
@@ -177,6 +182,29 @@ class Executive:
             except Exception as e:  # the executive's latch holds even when the transport does not answer
                 log.error("e-stop: the HAL refused it: %s", e)
         self.sm.to(S.ESTOPPED, why)
+
+    # ------------------------------------------------------------------ recording
+    def attach(self, recorder: Recorder | None) -> None:
+        """Record from now on into ``recorder`` (None: stop recording; the caller closes it). A write error
+        stops that recording, never the task: it is logged, kept in ``recording_error``, handed to
+        ``on_recording_error`` and said in the task's result."""
+        self.recorder = self.actor.recorder = recorder
+        if recorder is not None:
+            self.recording_error = None
+            recorder.on_error = self._recording_failed
+
+    def _recording_failed(self, why: str) -> None:
+        self.recording_error = why
+        log.error("executive: recording stopped, the task goes on: %s", why)
+        if self.on_recording_error is not None:
+            try:
+                self.on_recording_error(why)
+            except Exception:
+                log.exception("on_recording_error failed")
+
+    def _record_transition(self, tr: Transition) -> None:
+        if self.recorder is not None:
+            self.recorder.write("/transitions", tr.as_dict(), tr.t_wall)
 
     # ------------------------------------------------------------------ stages
     def _event(self, kind: str, **data: object) -> None:
@@ -321,6 +349,7 @@ class Executive:
                 self.actor.base_distance_m - prog.d0,
                 end.verified,
                 tuple(prog.executed),
+                self.recording_error,
             )
             self._event("result", **r.as_dict())
             log.info("task %s: %s", end.status.value, end.detail)
