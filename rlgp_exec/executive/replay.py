@@ -25,7 +25,7 @@ from rlgp_exec.executive.recorder import Recording, RecordingError, read_recordi
 from rlgp_exec.executive.world import drawer_openings
 from rlgp_exec.scene import Scene, scene_from_dict
 
-__all__ = ["ReplayInput", "ReplayReport", "load_replay", "replay"]
+__all__ = ["ReplayInput", "ReplayReport", "ReplayState", "load_replay", "replay"]
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,9 @@ BOUND = 1e4  # [m, rad] no replayed coordinate or joint value is larger (PyBulle
 
 
 @dataclass(frozen=True)
-class State:
+class ReplayState:
+    """One recorded /robot_state, checked."""
+
     t: float  # [s] wall time of the record
     stamp: float  # [s] the robot's clock
     base: tuple[float, float, float]  # x, y, yaw
@@ -46,7 +48,7 @@ class ReplayInput:
 
     recording: Recording
     scene: Scene
-    states: tuple[State, ...]
+    states: tuple[ReplayState, ...]
     detections: tuple[tuple[float, dict[str, np.ndarray]], ...]  # (t [s], object/frame: 4x4 pose)
     transitions: tuple[str, ...]
     results: tuple[str, ...]
@@ -101,14 +103,14 @@ def _field(where: str, d: dict[str, Any], key: str) -> Any:
     return d[key]
 
 
-def _state(where: str, t: float, d: dict[str, Any]) -> State:
+def _state(where: str, t: float, d: dict[str, Any]) -> ReplayState:
     names = _field(where, d, "names")
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise RecordingError(f"{where}: names: expected a list of joint names, got {names!r:.80}")
     q = _numbers(where, "q", _field(where, d, "q"), len(names))
     x, y, yaw = _numbers(where, "base", _field(where, d, "base"), 3)
     stamp = _number(where, "stamp", _field(where, d, "stamp"), math.inf)
-    return State(t, stamp, (x, y, yaw), dict(zip(names, q, strict=True)))
+    return ReplayState(t, stamp, (x, y, yaw), dict(zip(names, q, strict=True)))
 
 
 def _poses(where: str, d: dict[str, Any]) -> dict[str, np.ndarray]:
