@@ -198,22 +198,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _zenoh_config(args: argparse.Namespace) -> Path | None:
-    """--zenoh-config (default: $ZENOH_CONFIG), checked readable here so a typo is one line, not a trace."""
-    if not args.zenoh_config:
-        return None
-    path = Path(args.zenoh_config)
-    try:
-        path.read_bytes()
-    except OSError as e:
-        raise RlgpError(f"--zenoh-config {path}: cannot read: {e.strerror}") from None
-    return path
+    """--zenoh-config (default: $ZENOH_CONFIG); read (and an unreadable one named) by session_config."""
+    return Path(args.zenoh_config) if args.zenoh_config else None
 
 
 def cmd_daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from rlgp_exec.executive.daemon import Daemon, DaemonOptions
+    from rlgp_exec.executive.daemon import DEFAULT_LISTEN, Daemon, DaemonOptions
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
@@ -230,13 +223,19 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             namespace=args.namespace,
             zenoh_config=config if args.backend == "zenoh" else None,
         ),
-        DaemonOptions(args.listen, args.namespace, Path(args.record_dir) if args.record_dir else None, config),
+        DaemonOptions(
+            args.listen or (None if config else DEFAULT_LISTEN),
+            args.namespace,
+            Path(args.record_dir) if args.record_dir else None,
+            config,
+        ),
     )
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     daemon.start()  # on failure it has closed what it opened; main() prints the one line and exits 2
-    print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {args.listen}", flush=True)
+    where = daemon.opts.listen or config
+    print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {where}", flush=True)
     try:
         done.wait()
     finally:
@@ -247,17 +246,18 @@ def cmd_daemon(args: argparse.Namespace) -> int:
 def cmd_request(args: argparse.Namespace) -> int:
     import time
 
-    from rlgp_exec.executive.daemon import request
+    from rlgp_exec.executive.daemon import DEFAULT_LISTEN, request
 
     config = _zenoh_config(args)
+    endpoint = args.endpoint or (None if config else DEFAULT_LISTEN)
     payload = {"literals": args.literals} if args.what == "goal" else None
-    reply = request(args.endpoint, args.what, payload, args.namespace, zenoh_config=config)
+    reply = request(endpoint, args.what, payload, args.namespace, zenoh_config=config)
     print(json.dumps(reply, indent=2))
     if args.what == "goal" and args.wait and reply.get("ok"):
         task = reply["task"]
         while True:
             time.sleep(0.5)
-            st = request(args.endpoint, "status", None, args.namespace, zenoh_config=config)
+            st = request(endpoint, "status", None, args.namespace, zenoh_config=config)
             last = st.get("last") or {}
             if last.get("task") == task:
                 print(json.dumps(last, indent=2))
@@ -519,7 +519,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim")
     s.add_argument("--scene", required=True, help="the robot's environment (fixtures, objects) as a scene file")
     s.add_argument("--endpoint", help="zenoh backend: the robot's endpoint")
-    s.add_argument("--listen", default="tcp/127.0.0.1:7450", help="where clients connect (goals, status)")
+    s.add_argument(
+        "--listen", help="where clients connect (goals, status); default tcp/127.0.0.1:7450, or the config's"
+    )
     s.add_argument("--namespace", default="", help="key prefix of the daemon's (and the robot's) key space")
     s.add_argument("--record-dir", help="write one MCAP recording per task here")
     s.add_argument("--planner", default="rlgp")
@@ -536,7 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("what", choices=["goal", "cancel", "estop", "rearm", "reset", "status"])
     s.add_argument("literals", nargs="*", help="for goal: literals such as '(on block tray)'")
-    s.add_argument("--endpoint", default="tcp/127.0.0.1:7450")
+    s.add_argument("--endpoint", help="the daemon's endpoint; default tcp/127.0.0.1:7450, or the config's")
     s.add_argument("--namespace", default="")
     s.add_argument("--wait", action="store_true", help="for goal: wait for the task's result")
     s.add_argument(

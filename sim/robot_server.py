@@ -437,6 +437,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     endpoint = args.endpoint or (None if args.zenoh_config else DEFAULT_ENDPOINT)
     sim = None
     try:
+        if args.transport == "zenoh":  # a bad endpoint or configuration is named before the physics loads
+            session_config(listen=endpoint, config_file=args.zenoh_config)
         sim = build_sim(args.robot, args.scene)
         server: Any
         if args.transport == "zenoh":

@@ -56,6 +56,7 @@ __all__ = ["KEYS", "Daemon", "DaemonOptions", "request"]
 log = logging.getLogger(__name__)
 
 KEYS = ("goal", "cancel", "estop", "rearm", "reset", "status")
+DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
 MAX_QUEUE = 8
 MAX_PAYLOAD = 64 * 1024  # [bytes] a request larger than this is refused unread
 MAX_LITERALS = 64  # per goal, and MAX_LITERAL chars each: the status that echoes a goal stays small
@@ -68,7 +69,7 @@ _BLOCKED = {ExecState.FAULT: "reset", ExecState.ESTOPPED: "rearm"}
 
 @dataclass(frozen=True)
 class DaemonOptions:
-    listen: str = "tcp/127.0.0.1:7450"  # where clients connect
+    listen: str | None = DEFAULT_LISTEN  # where clients connect; None: the zenoh_config's endpoints
     namespace: str = ""  # key prefix of the daemon's key space
     record_dir: Path | None = None  # one MCAP per task
     zenoh_config: Path | None = None  # json5 for the client-facing session (TLS, access control)
@@ -124,7 +125,7 @@ class Daemon:
         )
         self.executive.sm.listeners.append(self._on_transition)
         self.executive.actor.on_phase = self._on_phase
-        self._session = open_session(config, f"daemon: cannot listen on {self.opts.listen}")
+        self._session = open_session(config, f"daemon: cannot listen on {self.opts.listen or self.opts.zenoh_config}")
         self._pub = self._session.declare_publisher(f"{self.base}/status")
         handlers = {
             "goal": self._on_goal,
@@ -139,7 +140,8 @@ class Daemon:
             self._decls.append(self._session.declare_queryable(key, self._guard(key, fn)))
         self._worker = threading.Thread(target=self._work, name="executive", daemon=True)
         self._worker.start()
-        log.info("daemon: serving %s/{%s} on %s", self.base, ",".join(KEYS), self.opts.listen)
+        where = self.opts.listen or self.opts.zenoh_config
+        log.info("daemon: serving %s/{%s} on %s", self.base, ",".join(KEYS), where)
 
     def stop(self) -> None:
         """Graceful: cancel the running task (jerk-limited stop), wait for rest, close everything."""
@@ -363,15 +365,16 @@ def _confirmed(what: str, payload: bytes) -> dict[str, Any] | None:
 
 
 def request(
-    endpoint: str,
+    endpoint: str | None,
     what: str,
     payload: dict[str, Any] | None = None,
     namespace: str = "",
     timeout_s: float = 5.0,
     zenoh_config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """A client call: one query to a daemon at ``endpoint``; the JSON reply (or an error dict).
-    ``rearm`` and ``reset`` are sent confirmed: calling them is the operator's explicit request."""
+    """A client call: one query to a daemon at ``endpoint`` (None: the ``zenoh_config``'s connect endpoints);
+    the JSON reply (or an error dict). ``rearm`` and ``reset`` are sent confirmed: calling them is the
+    operator's explicit request."""
     from rlgp_exec.hal.zenoh_keys import open_session, session_config
 
     if what not in KEYS:
@@ -379,7 +382,8 @@ def request(
     if what in ("rearm", "reset") and payload is None:
         payload = CONFIRM
     prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
-    s = open_session(session_config(connect=endpoint, config_file=zenoh_config), f"request: cannot open {endpoint}")
+    where = endpoint or zenoh_config
+    s = open_session(session_config(connect=endpoint, config_file=zenoh_config), f"request: cannot open {where}")
     try:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
@@ -388,6 +392,6 @@ def request(
                 if r.ok is not None:
                     return json.loads(r.ok.payload.to_bytes())
             time.sleep(0.1)  # not connected yet
-        return _err(f"no daemon answered at {endpoint} within {timeout_s} s")
+        return _err(f"no daemon answered at {where} within {timeout_s} s")
     finally:
         s.close()

@@ -45,7 +45,7 @@ class ZenohBackend(RobotInterface):
     def __init__(
         self,
         robot: str = "hsr",
-        endpoint: str = DEFAULT_ENDPOINT,
+        endpoint: str | None = None,
         namespace: str = "",
         heartbeat_timeout: float = 0.25,
         control_period: float = 0.01,
@@ -53,7 +53,8 @@ class ZenohBackend(RobotInterface):
     ) -> None:
         super().__init__(load_robot(robot), heartbeat_timeout)
         self.keys = load_key_map(robot, namespace)
-        self.endpoint = endpoint
+        # no endpoint: the config file's connect endpoints, else the default one
+        self.endpoint = endpoint if endpoint is not None or config_file is not None else DEFAULT_ENDPOINT
         self.config_file = config_file  # json5: TLS certificates, access control
         self._keepalive_stop = threading.Event()
         self._keepalive: threading.Thread | None = None
@@ -79,14 +80,14 @@ class ZenohBackend(RobotInterface):
     # ------------------------------------------------------------------ lifecycle hooks
     def _on_configure(self) -> None:
         config = session_config(connect=self.endpoint, config_file=self.config_file)
-        s = open_session(config, f"zenoh: cannot connect to {self.endpoint}")
+        s = open_session(config, f"zenoh: cannot connect to {self.endpoint or self.config_file}")
         self._session = s
         try:
             self._declare(s)
         except Exception:
             self._on_shutdown()  # a half-declared session is closed, not left running
             raise
-        log.info("zenoh: connected to %s (namespace %r)", self.endpoint, self.keys.namespace)
+        log.info("zenoh: connected to %s (namespace %r)", self.endpoint or self.config_file, self.keys.namespace)
 
     def _declare(self, s: Any) -> None:
         k = self.keys

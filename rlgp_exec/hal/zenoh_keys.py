@@ -27,6 +27,7 @@ __all__ = ["DEFAULT_ENDPOINT", "KeyMap", "Topic", "exact", "load_key_map", "open
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream")  # what an endpoint may start with
+_IP_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws")
 # what a listening / connecting TLS session needs under transport/link/tls
 _TLS_LISTEN = ("listen_certificate", "listen_private_key")
 _TLS_CONNECT = ("root_ca_certificate",)
@@ -111,11 +112,16 @@ def exact(msg: Any, key: str) -> bool:
 
 
 def _check_endpoint(ep: object) -> str:
-    if not isinstance(ep, str) or not re.fullmatch(r"[a-z-]+/\S+", ep):
+    """``proto/host:port`` (host a name, an IPv4 or a bracketed IPv6 address), optional ``?``/``#`` tail."""
+    if not isinstance(ep, str) or "/" not in ep:
         raise HalError(f"zenoh endpoint {ep!r} must look like tcp/127.0.0.1:7447")
-    proto = ep.split("/", 1)[0]
+    proto, addr = ep.split("/", 1)
     if proto not in PROTOCOLS:
         raise HalError(f"zenoh endpoint {ep!r}: unsupported protocol {proto!r}; valid: {list(PROTOCOLS)}")
+    if proto in _IP_PROTOCOLS:
+        m = re.fullmatch(r"(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})([?#].*)?", addr)
+        if m is None or int(m.group(2)) > 65535:
+            raise HalError(f"zenoh endpoint {ep!r} must look like {proto}/127.0.0.1:7447 (host:port, port <= 65535)")
     return ep
 
 
@@ -143,6 +149,10 @@ def session_config(
     if ep is not None:
         _check_endpoint(ep)
     if config_file is not None:
+        try:
+            Path(config_file).read_bytes()
+        except OSError as e:
+            raise HalError(f"zenoh config {config_file}: cannot read: {e.strerror}") from None
         try:
             c = zenoh.Config.from_file(str(config_file))
         except Exception as e:  # zenoh.ZError: unreadable, not json5, unknown field
