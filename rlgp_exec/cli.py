@@ -429,6 +429,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if report.ok else 1
 
 
+def _zenoh_config_flag(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--zenoh-config",
+        default=os.environ.get("ZENOH_CONFIG"),
+        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
+        "an endpoint flag replaces its listen/connect endpoints",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rlgp-exec", description="Sense-plan-act executive for mobile manipulators.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
@@ -456,12 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--goal", action="append", help="a goal literal, e.g. '(on block tray)' (repeatable)")
     s.add_argument("--endpoint", help="zenoh: the robot's endpoint, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", default="", help="zenoh: key prefix")
-    s.add_argument(
-        "--zenoh-config",
-        default=os.environ.get("ZENOH_CONFIG"),
-        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
-        "the endpoint flag replaces its listen/connect endpoints",
-    )
+    _zenoh_config_flag(s)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json")
     s.set_defaults(func=cmd_run)
@@ -506,12 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene")
     s.add_argument("--endpoint", help="zenoh: the endpoint to listen on, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
-    s.add_argument(
-        "--zenoh-config",
-        default=os.environ.get("ZENOH_CONFIG"),
-        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
-        "the endpoint flag replaces its listen/connect endpoints",
-    )
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_sim_robot)
 
     s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")
@@ -525,12 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--namespace", default="", help="key prefix of the daemon's (and the robot's) key space")
     s.add_argument("--record-dir", help="write one MCAP recording per task here")
     s.add_argument("--planner", default="rlgp")
-    s.add_argument(
-        "--zenoh-config",
-        default=os.environ.get("ZENOH_CONFIG"),
-        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
-        "the endpoint flag replaces its listen/connect endpoints",
-    )
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_daemon)
 
     s = sub.add_parser(
@@ -541,12 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--endpoint", help="the daemon's endpoint; default tcp/127.0.0.1:7450, or the config's")
     s.add_argument("--namespace", default="")
     s.add_argument("--wait", action="store_true", help="for goal: wait for the task's result")
-    s.add_argument(
-        "--zenoh-config",
-        default=os.environ.get("ZENOH_CONFIG"),
-        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
-        "the endpoint flag replaces its listen/connect endpoints",
-    )
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_request)
 
     s = sub.add_parser("rg", help="build/draw a scene's reachability graph")

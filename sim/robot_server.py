@@ -250,10 +250,16 @@ class ZenohRobotServer:
             self.holds[kind] += 1
             log.warning("robot_server: %s", fault)
 
-    def _heartbeat(self, payload: bytes, topic: str) -> None:
-        m = rc.decode(payload, "std_msgs/msg/Float64")
+    def _decode(self, payload: bytes, typename: str, topic: str) -> Any:
+        """The message, or None (rejected and counted)."""
+        m = rc.decode(payload, typename)
         if isinstance(m, rc.Rejected):
             self.rejects.reject(m.key, f"{topic}: {m.reason}")
+            return None
+        return m
+
+    def _heartbeat(self, payload: bytes, topic: str) -> None:
+        if self._decode(payload, "std_msgs/msg/Float64", topic) is None:
             return
         with self.lock:
             self._heard(motion=False)
@@ -304,9 +310,8 @@ class ZenohRobotServer:
                 self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
 
     def _grasp(self, payload: bytes, topic: str) -> None:
-        m = rc.decode(payload, "std_msgs/msg/Float64")
-        if isinstance(m, rc.Rejected):
-            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+        m = self._decode(payload, "std_msgs/msg/Float64", topic)
+        if m is None:
             return
         reason = self.limits.check_grasp_force(m.data)
         if reason:
@@ -335,9 +340,8 @@ class ZenohRobotServer:
                 self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
 
     def _estop(self, payload: bytes, topic: str) -> None:
-        m = rc.decode(payload, "std_msgs/msg/Bool")
-        if isinstance(m, rc.Rejected):
-            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+        m = self._decode(payload, "std_msgs/msg/Bool", topic)
+        if m is None:
             return
         with self.lock:
             self.sim.estop(bool(m.data))

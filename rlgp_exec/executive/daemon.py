@@ -26,8 +26,10 @@ the daemon keeps serving. The status — state, current task, queue, last result
 ``.../status`` at every transition and result. On SIGTERM/SIGINT the daemon cancels the running task (a
 jerk-limited stop), brings the robot to rest, finishes the recording and exits 0.
 
-Who may ask is the Zenoh configuration's business (``--zenoh-config``): mutual TLS on the listen
-endpoint and ``access_control`` rules per client certificate's common name (see README, "Daemon").
+The daemon declares nothing outside its key space. Who may ask is the Zenoh configuration's business
+(``--zenoh-config``): mutual TLS on the listen endpoint and ``access_control`` rules per client
+certificate's common name (see README, "Daemon"). One file serves both of the daemon's sessions (the
+robot's, with the zenoh backend, and the clients'), so its rules admit the robot's certificate too.
 """
 
 from __future__ import annotations
@@ -110,7 +112,14 @@ class Daemon:
         busy endpoint, an unreadable configuration) closes what was opened and raises RlgpError."""
         try:
             self._start()
-        except BaseException:
+        except RlgpError:
+            self._close()
+            raise
+        except Exception as e:  # an unforeseen Zenoh error is still a start-up error: one line, exit 2
+            log.debug("daemon: start-up failed", exc_info=True)
+            self._close()
+            raise RlgpError(f"daemon: start-up failed: {type(e).__name__}: {e}") from e
+        except BaseException:  # KeyboardInterrupt while connecting
             self._close()
             raise
 

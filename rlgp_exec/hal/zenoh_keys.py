@@ -51,7 +51,7 @@ class KeyMap:
     alive_robot: str
     alive_executive: str
     stats: str
-    heartbeat: str  # the HAL's keepalive (std_msgs/Float64, a counter) while the robot is at rest
+    heartbeat: str  # the HAL's keepalive (std_msgs/Float64, a counter) while its last commands were at rest
 
     def __getitem__(self, name: str) -> Topic:
         try:
