@@ -74,10 +74,19 @@ def _ask(client, what: str, payload: object = None) -> dict | None:
     return json.loads(got[0]) if got else None
 
 
+def _idle(daemon: Daemon) -> None:
+    """Back to IDLE, whichever test (or xdist order) left the shared daemon e-stopped."""
+    ex = daemon.executive
+    if ex.sm.state is ExecState.ESTOPPED:
+        ex.rearm()
+    ex.reset()
+    assert ex.sm.state is ExecState.IDLE
+
+
 def test_wildcard_queries_run_no_handler(served):
     daemon, client, _ = served
     ex = daemon.executive
-    assert ex.sm.state is ExecState.IDLE
+    _idle(daemon)
     for confirmed in (None, b'{"confirm": true}', b'{"literals": ["(on block tray)"]}'):
         for key in WILDCARDS:
             before = sum(daemon.ignored.values())
@@ -96,6 +105,7 @@ def test_wildcard_queries_run_no_handler(served):
 def test_safety_states_are_left_only_on_a_confirmed_request(served):
     daemon, client, ep = served
     ex = daemon.executive
+    _idle(daemon)
     assert _ask(client, "estop")["ok"] and ex.sm.state is ExecState.ESTOPPED
     for bad in (None, {}, {"confirm": False}, {"confirm": 1}, {"confirm": "yes"}, {"confirm": True, "x": 1}, [True]):
         r = _ask(client, "rearm", bad)
@@ -205,6 +215,26 @@ def test_wildcard_puts_move_nothing_and_release_no_estop(robot):
     assert np.allclose(st_.base, base0, atol=1e-3) and np.allclose(st_.q, q0, atol=2e-3)
     client.liveliness().declare_token("rlgp/alive/**")  # a wildcard token: not the executive's
     assert _wait(lambda: server.rejects.counts().get("wildcard", 0) > 6 * 3 + 2, 2.0), server.rejects.counts()
+
+
+def test_the_zenoh_hal_takes_state_only_from_its_exact_keys(robot):
+    from rlgp_exec.hal import make_backend
+
+    server, _ = robot
+    hal = make_backend("zenoh", endpoint=server.endpoint)
+    hal.configure()
+    try:
+        assert hal.wait_for_robot(10.0)
+        time.sleep(0.2)
+        spoof = rc.encode_joint_state(0.0, ["arm_lift_joint"], [0.33], [0.0])
+        for key in ("hsrb/*", "hsrb/**", "**"):  # from the robot's side: the one peer the HAL connects to
+            server._session.put(key, spoof)
+            server._session.put(key, rc.encode_bool(True))  # a run-stop on no key of the robot's
+        assert _wait(lambda: hal.rejects.counts().get("wildcard", 0) >= 6, 2.0), hal.rejects.counts()
+        st_ = hal.read_state()
+        assert not st_.estopped and st_.position("arm_lift_joint") != pytest.approx(0.33, abs=1e-3)
+    finally:
+        hal.shutdown()
 
 
 def test_a_silent_executive_is_held_within_the_deadline(robot):
