@@ -98,7 +98,12 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     from sim.robot_server import main as server_main
 
     argv = ["--robot", args.robot, "--transport", args.transport]
-    for flag, value in (("--scene", args.scene), ("--endpoint", args.endpoint), ("--namespace", args.namespace)):
+    for flag, value in (
+        ("--scene", args.scene),
+        ("--endpoint", args.endpoint),
+        ("--namespace", args.namespace),
+        ("--zenoh-config", args.zenoh_config),
+    ):
         if value:
             argv += [flag, value]
     return server_main(argv)
@@ -158,6 +163,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         record=Path(args.record) if args.record else None,
         endpoint=args.endpoint,
         namespace=args.namespace,
+        zenoh_config=_zenoh_config(args),
         seed=args.seed,
     )
     result, _ = run_task(scene, opts, args.goal)
@@ -192,27 +198,45 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0 if not report.collisions else 1
 
 
+def _zenoh_config(args: argparse.Namespace) -> Path | None:
+    """--zenoh-config (default: $ZENOH_CONFIG); read (and an unreadable one named) by session_config."""
+    return Path(args.zenoh_config) if args.zenoh_config else None
+
+
 def cmd_daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from rlgp_exec.executive.daemon import Daemon, DaemonOptions
+    from rlgp_exec.executive.daemon import DEFAULT_LISTEN, Daemon, DaemonOptions
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
     scene = load_scene(args.scene)
     if scene.robot.name != args.robot:
         raise RlgpError(f"--scene {args.scene} is for robot {scene.robot.name!r}, not --robot {args.robot!r}")
+    config = _zenoh_config(args)
     daemon = Daemon(
         scene,
-        RunOptions(backend=args.backend, planner=args.planner, endpoint=args.endpoint, namespace=args.namespace),
-        DaemonOptions(args.listen, args.namespace, Path(args.record_dir) if args.record_dir else None),
+        RunOptions(
+            backend=args.backend,
+            planner=args.planner,
+            endpoint=args.endpoint,
+            namespace=args.namespace,
+            zenoh_config=config if args.backend == "zenoh" else None,
+        ),
+        DaemonOptions(
+            args.listen or (None if config else DEFAULT_LISTEN),
+            args.namespace,
+            Path(args.record_dir) if args.record_dir else None,
+            config,
+        ),
     )
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    daemon.start()
-    print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {args.listen}", flush=True)
+    daemon.start()  # on failure it has closed what it opened; main() prints the one line and exits 2
+    where = daemon.opts.listen or config
+    print(f"daemon ready: {args.robot} via {args.backend}; requests at {daemon.base}/* on {where}", flush=True)
     try:
         while not done.wait(0.2) and not daemon.dead.is_set():
             pass
@@ -227,16 +251,18 @@ def cmd_daemon(args: argparse.Namespace) -> int:
 def cmd_request(args: argparse.Namespace) -> int:
     import time
 
-    from rlgp_exec.executive.daemon import request
+    from rlgp_exec.executive.daemon import DEFAULT_LISTEN, request
 
+    config = _zenoh_config(args)
+    endpoint = args.endpoint or (None if config else DEFAULT_LISTEN)
     payload = {"literals": args.literals} if args.what == "goal" else None
-    reply = request(args.endpoint, args.what, payload, args.namespace)
+    reply = request(endpoint, args.what, payload, args.namespace, zenoh_config=config)
     print(json.dumps(reply, indent=2))
     if args.what == "goal" and args.wait and reply.get("ok"):
         task = reply["task"]
         while True:
             time.sleep(0.5)
-            st = request(args.endpoint, "status", None, args.namespace)
+            st = request(endpoint, "status", None, args.namespace, zenoh_config=config)
             last = st.get("last") or {}
             if last.get("task") == task:
                 print(json.dumps(last, indent=2))
@@ -408,6 +434,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if report.ok else 1
 
 
+def _zenoh_config_flag(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--zenoh-config",
+        default=os.environ.get("ZENOH_CONFIG"),
+        help="zenoh: a json5 configuration (TLS certificates, access control; default $ZENOH_CONFIG); "
+        "an endpoint flag replaces its listen/connect endpoints",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rlgp-exec", description="Sense-plan-act executive for mobile manipulators.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
@@ -435,6 +470,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--goal", action="append", help="a goal literal, e.g. '(on block tray)' (repeatable)")
     s.add_argument("--endpoint", help="zenoh: the robot's endpoint, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", default="", help="zenoh: key prefix")
+    _zenoh_config_flag(s)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json")
     s.set_defaults(func=cmd_run)
@@ -479,6 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene")
     s.add_argument("--endpoint", help="zenoh: the endpoint to listen on, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_sim_robot)
 
     s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")
@@ -486,18 +523,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim")
     s.add_argument("--scene", required=True, help="the robot's environment (fixtures, objects) as a scene file")
     s.add_argument("--endpoint", help="zenoh backend: the robot's endpoint")
-    s.add_argument("--listen", default="tcp/127.0.0.1:7450", help="where clients connect (goals, status)")
+    s.add_argument(
+        "--listen", help="where clients connect (goals, status); default tcp/127.0.0.1:7450, or the config's"
+    )
     s.add_argument("--namespace", default="", help="key prefix of the daemon's (and the robot's) key space")
     s.add_argument("--record-dir", help="write one MCAP recording per task here")
     s.add_argument("--planner", default="rlgp")
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_daemon)
 
-    s = sub.add_parser("request", help="ask a running daemon: goal LITERAL..., cancel, estop, rearm, status")
-    s.add_argument("what", choices=["goal", "cancel", "estop", "rearm", "status"])
+    s = sub.add_parser(
+        "request", help="ask a running daemon: goal LITERAL..., cancel, estop, rearm, reset (a FAULT), status"
+    )
+    s.add_argument("what", choices=["goal", "cancel", "estop", "rearm", "reset", "status"])
     s.add_argument("literals", nargs="*", help="for goal: literals such as '(on block tray)'")
-    s.add_argument("--endpoint", default="tcp/127.0.0.1:7450")
+    s.add_argument("--endpoint", help="the daemon's endpoint; default tcp/127.0.0.1:7450, or the config's")
     s.add_argument("--namespace", default="")
     s.add_argument("--wait", action="store_true", help="for goal: wait for the task's result")
+    _zenoh_config_flag(s)
     s.set_defaults(func=cmd_request)
 
     s = sub.add_parser("rg", help="build/draw a scene's reachability graph")

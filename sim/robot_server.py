@@ -10,7 +10,21 @@ on ``--endpoint``; clients connect to it. CAN: the CANopen node set of ``robots/
 (see ``sim/robot_server_can.py``) on a python-can bus.
 
 Every command is decoded defensively and checked against the robot's limits again here; a bad one is
-rejected, counted, logged, and moves nothing. The physics runs in real time (stepped every period).
+rejected, counted, logged, and moves nothing. A sample acts only when its key expression is exactly the
+command's key: a put on a wildcard (``hsrb/**``, ``**``) that Zenoh delivers to every subscriber it
+intersects is rejected ("wildcard"). The physics runs in real time (stepped every period).
+
+Its own deadline on the executive, not the transport's lease (10 s): once commanded (an arm setpoint or
+a base twist accepted), the server expects a command or an executive keepalive (``rlgp/heartbeat/
+executive``) at least every ``COMMAND_DEADLINE_S``; when none comes it holds (base twist zero, arm at its
+measured position) and reports the fault ``executive silent`` until commands or keepalives resume. The
+"executive lost" fault (its liveliness token gone) is likewise cleared by a command or keepalive, not
+by a token, which any peer can declare.
+
+Releasing the e-stop (``rlgp/estop`` false) is a deliberate act: the executive sends it only on an
+operator's confirmed ``rearm``. Who may send it, and any command, is the Zenoh configuration's business
+(``--zenoh-config``): mutual TLS on the endpoint and ``access_control`` rules allowing the command keys to
+the executive's certificate only.
 """
 
 from __future__ import annotations
@@ -34,7 +48,7 @@ from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
 from rlgp_exec.hal.validate import CommandLimits, RejectCounter
-from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
+from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
 
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
@@ -42,6 +56,9 @@ log = logging.getLogger("sim.robot_server")
 
 PUSH_KEY = "rlgp/sim/push"  # sim only: JSON {"object", "dx", "dy"} moves an object (a test's "someone bumped it")
 MOCAP_EVERY = 5  # ticks between object-pose messages (20 Hz at 100 Hz)
+COMMAND_DEADLINE_S = 0.5  # [s] commanded, and no command or keepalive for this long: hold
+SILENT = "executive silent: no command or keepalive within 0.5 s: holding position"
+LOST = "executive lost: holding position"
 
 
 def _ns(namespace: str, key: str) -> str:
@@ -95,11 +112,17 @@ class ZenohRobotServer:
     """The robot side of the zenoh backend, driving a :class:`SimRobot`."""
 
     def __init__(
-        self, sim: SimRobot, endpoint: str = DEFAULT_ENDPOINT, namespace: str = "", rate_hz: float = 100.0
+        self,
+        sim: SimRobot,
+        endpoint: str | None = DEFAULT_ENDPOINT,
+        namespace: str = "",
+        rate_hz: float = 100.0,
+        config_file: str | None = None,
     ) -> None:
         self.sim = sim
         self.keys = load_key_map(sim.model.name, namespace)
-        self.endpoint = endpoint
+        self.endpoint = endpoint  # None: the config file's listen endpoints
+        self.config_file = config_file
         self.limits = CommandLimits(sim.model)
         self.period = 1.0 / rate_hz
         self.rejects = RejectCounter("robot_server[zenoh]")
@@ -109,15 +132,32 @@ class ZenohRobotServer:
         self._session: Any = None
         self._pubs: dict[str, Any] = {}
         self._decls: list[Any] = []
+        self._token: Any = None
         self._executive_seen = False
         self._ticks = 0
+        self._commanded = False  # a motion command was accepted: the deadline runs
+        self._last_heard = -float("inf")  # [s, monotonic] the last command or keepalive
+        self.holds: Counter[str] = Counter()  # holds for a silent / lost executive
 
     # ------------------------------------------------------------------ set-up
     def start(self) -> None:
-        import zenoh
-
-        s = zenoh.open(session_config(listen=self.endpoint))
+        config = session_config(listen=self.endpoint, config_file=self.config_file)
+        s = open_session(config, f"robot server: cannot listen on {self.endpoint or self.config_file}")
         self._session = s
+        try:
+            self._declare(s)
+        except Exception:
+            self.stop()  # a half-declared session is closed, not left running
+            raise
+        self.loop.start()
+        log.info(
+            "zenoh robot server (%s) listening on %s, namespace %r",
+            self.sim.model.name,
+            self.endpoint or self.config_file,
+            self.keys.namespace,
+        )
+
+    def _declare(self, s: Any) -> None:
         k = self.keys
         for name in ("joint_states", "odom", "runstop", "faults"):
             self._pubs[name] = s.declare_publisher(k[name].key)
@@ -126,27 +166,27 @@ class ZenohRobotServer:
             "grasp": self._grasp,
             "estop": self._estop,
             "gripper": self._gripper,
+            "heartbeat": self._heartbeat,
         }
         for t in k.joint_topics():
             handlers[t.name] = self._joint_trajectory
         for name, fn in handlers.items():
-            self._decls.append(s.declare_subscriber(k[name].key, self._guard(name, fn)))
+            key = k.heartbeat if name == "heartbeat" else k[name].key
+            self._decls.append(s.declare_subscriber(key, self._guard(name, key, fn)))
         self._decls.append(s.liveliness().declare_subscriber(k.alive_executive, self._on_executive, history=True))
         self._decls.append(s.declare_queryable(k.stats, self._on_stats))
         if self.sim.objects:  # the simulated world's object poses, as a motion-capture system would send them
             self._pubs["mocap"] = s.declare_publisher(_ns(k.namespace, MOCAP_KEY))
-            self._decls.append(s.declare_subscriber(_ns(k.namespace, PUSH_KEY), self._guard("push", self._push)))
+            push = _ns(k.namespace, PUSH_KEY)
+            self._decls.append(s.declare_subscriber(push, self._guard("push", push, self._push)))
         self._token = s.liveliness().declare_token(k.alive_robot)
-        self.loop.start()
-        log.info(
-            "zenoh robot server (%s) listening on %s, namespace %r", self.sim.model.name, self.endpoint, k.namespace
-        )
 
     def stop(self) -> None:
         self.loop.stop()
         if self._session is not None:
             try:
-                self._token.undeclare()
+                if self._token is not None:
+                    self._token.undeclare()
             except Exception as e:
                 log.debug("undeclare failed: %s", e)
             self._session.close()
@@ -155,6 +195,8 @@ class ZenohRobotServer:
     # ------------------------------------------------------------------ loop
     def tick(self) -> None:
         with self.lock:
+            if self._commanded and time.monotonic() - self._last_heard > COMMAND_DEADLINE_S:
+                self._hold_for(SILENT, "silent")
             self.sim.step(self.period)
             st = self.sim.state()
         self._ticks += 1
@@ -170,8 +212,11 @@ class ZenohRobotServer:
             self._pubs["mocap"].put(rc.encode_transforms(st.stamp, poses))
 
     # ------------------------------------------------------------------ commands
-    def _guard(self, topic: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:
+    def _guard(self, topic: str, key: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:
         def cb(sample: Any) -> None:
+            if not exact(sample, key):
+                self.rejects.reject("wildcard", f"{topic}: sample on {sample.key_expr}, not {key}")
+                return
             try:
                 fn(sample.payload.to_bytes(), topic)
             except Exception as e:  # never let a payload kill the server
@@ -182,6 +227,43 @@ class ZenohRobotServer:
 
     def _ok(self, topic: str) -> None:
         self.accepted[topic] += 1
+
+    def _heard(self, motion: bool) -> None:
+        """A command or keepalive from the executive (lock held): the deadline restarts, the executive's
+        faults clear; a motion command starts the deadline."""
+        self._last_heard = time.monotonic()
+        self._commanded = self._commanded or motion
+        for f in (SILENT, LOST):
+            if f in self.sim.faults:
+                self.sim.faults.remove(f)
+                log.warning("robot_server: executive back: %r cleared", f)
+
+    def _hold_for(self, fault: str, kind: str) -> None:
+        """Hold (lock held): the arm at its measured position, the base stopped; report ``fault`` once.
+        The deadline stops until the executive is heard again."""
+        st = self.sim.state()
+        self.sim.set_joint_targets(JointSetpoint(self.limits.setpoint_names, st.positions(self.limits.setpoint_names)))
+        self.sim.set_base_velocity(0.0, 0.0, 0.0)
+        self._commanded = False
+        if fault not in self.sim.faults:
+            self.sim.faults.append(fault)
+            self.holds[kind] += 1
+            log.warning("robot_server: %s", fault)
+
+    def _decode(self, payload: bytes, typename: str, topic: str) -> Any:
+        """The message, or None (rejected and counted)."""
+        m = rc.decode(payload, typename)
+        if isinstance(m, rc.Rejected):
+            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+            return None
+        return m
+
+    def _heartbeat(self, payload: bytes, topic: str) -> None:
+        if self._decode(payload, "std_msgs/msg/Float64", topic) is None:
+            return
+        with self.lock:
+            self._heard(motion=False)
+        self._ok(topic)
 
     def _joint_trajectory(self, payload: bytes, topic: str) -> None:
         sp = rc.parse_trajectory(payload)
@@ -200,6 +282,7 @@ class ZenohRobotServer:
             self.rejects.reject("limits", f"{topic}: {reason}")
             return
         with self.lock:
+            self._heard(motion=True)
             if self.sim.set_joint_targets(sp):
                 self._ok(topic)
             else:
@@ -227,9 +310,8 @@ class ZenohRobotServer:
                 self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
 
     def _grasp(self, payload: bytes, topic: str) -> None:
-        m = rc.decode(payload, "std_msgs/msg/Float64")
-        if isinstance(m, rc.Rejected):
-            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+        m = self._decode(payload, "std_msgs/msg/Float64", topic)
+        if m is None:
             return
         reason = self.limits.check_grasp_force(m.data)
         if reason:
@@ -251,15 +333,15 @@ class ZenohRobotServer:
             self.rejects.reject("limits", f"{topic}: {reason}")
             return
         with self.lock:
+            self._heard(motion=True)
             if self.sim.set_base_velocity(*v):
                 self._ok(topic)
             else:
                 self.rejects.reject("estopped", f"{topic}: ignored while e-stopped")
 
     def _estop(self, payload: bytes, topic: str) -> None:
-        m = rc.decode(payload, "std_msgs/msg/Bool")
-        if isinstance(m, rc.Rejected):
-            self.rejects.reject(m.key, f"{topic}: {m.reason}")
+        m = self._decode(payload, "std_msgs/msg/Bool", topic)
+        if m is None:
             return
         with self.lock:
             self.sim.estop(bool(m.data))
@@ -289,22 +371,15 @@ class ZenohRobotServer:
     def _on_executive(self, sample: Any) -> None:
         import zenoh
 
-        fault = "executive lost: holding position"
+        if not exact(sample, self.keys.alive_executive):
+            self.rejects.reject("wildcard", f"liveliness on {sample.key_expr}, not {self.keys.alive_executive}")
+            return
         with self.lock:
-            if sample.kind == zenoh.SampleKind.PUT:
+            if sample.kind == zenoh.SampleKind.PUT:  # presence only: a token clears no fault (anyone can declare one)
                 self._executive_seen = True
-                if fault in self.sim.faults:
-                    self.sim.faults.remove(fault)
                 log.info("robot_server: executive present")
             elif self._executive_seen:
-                st = self.sim.state()
-                self.sim.set_joint_targets(
-                    JointSetpoint(self.limits.setpoint_names, st.positions(self.limits.setpoint_names))
-                )
-                self.sim.set_base_velocity(0.0, 0.0, 0.0)
-                if fault not in self.sim.faults:
-                    self.sim.faults.append(fault)
-                log.warning("robot_server: %s", fault)
+                self._hold_for(LOST, "lost")
 
     def stats(self) -> dict[str, Any]:
         return {
@@ -312,12 +387,14 @@ class ZenohRobotServer:
             "rejected_total": self.rejects.total,
             "accepted": dict(self.accepted),
             "ticks": self._ticks,
+            "holds": dict(self.holds),
             "sim_time": self.sim.time,
             "loop_period_err_ms_p99": self.loop.p99_ms(),
         }
 
     def _on_stats(self, query: Any) -> None:
-        query.reply(self.keys.stats, json.dumps(self.stats()).encode())
+        if exact(query, self.keys.stats):
+            query.reply(self.keys.stats, json.dumps(self.stats()).encode())
 
 
 def build_sim(robot: str, scene_path: str | None) -> SimRobot:
@@ -336,7 +413,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--robot", choices=["hsr", "pr2"], required=True)
     ap.add_argument("--transport", choices=["zenoh", "can"], required=True)
     ap.add_argument("--scene", help="a scene TOML (default: the robot alone on a floor)")
-    ap.add_argument("--endpoint", default=DEFAULT_ENDPOINT, help="zenoh: endpoint to listen on")
+    ap.add_argument("--endpoint", help=f"zenoh: endpoint to listen on (default {DEFAULT_ENDPOINT}, or the config's)")
+    ap.add_argument(
+        "--zenoh-config", help="zenoh: a json5 configuration (TLS, access control); --endpoint replaces its listen"
+    )
     ap.add_argument("--namespace", default="", help="zenoh: key prefix (the bridge's namespace)")
     ap.add_argument("--can-interface", default="socketcan", help="can: python-can interface (socketcan, udp_multicast)")
     ap.add_argument("--can-channel", default="vcan0", help="can: python-can channel")
@@ -358,17 +438,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.rate > 0:
         print(f"sim.robot_server: --rate must be > 0, got {args.rate}", file=sys.stderr)
         return 2
+    endpoint = args.endpoint or (None if args.zenoh_config else DEFAULT_ENDPOINT)
+    sim = None
     try:
+        if args.transport == "zenoh":  # a bad endpoint or configuration is named before the physics loads
+            session_config(listen=endpoint, config_file=args.zenoh_config)
         sim = build_sim(args.robot, args.scene)
         server: Any
         if args.transport == "zenoh":
-            server = ZenohRobotServer(sim, args.endpoint, args.namespace, args.rate)
+            server = ZenohRobotServer(sim, endpoint, args.namespace, args.rate, args.zenoh_config)
         else:
             from sim.robot_server_can import CanRobotServer, open_bus
 
             server = CanRobotServer(sim, open_bus(args.can_interface, args.can_channel), rate_hz=args.rate)
         server.start()
     except RlgpError as e:
+        if sim is not None:
+            sim.close()
         print(f"sim.robot_server: error: {e}", file=sys.stderr)
         return 2
     done = threading.Event()

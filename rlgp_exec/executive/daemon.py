@@ -9,17 +9,27 @@ key                        payload                                             r
 ``.../goal``               ``{"literals": ["(on block tray)", ...]}``          ``{"ok", "task", "queued"}``
 ``.../cancel``             (none)                                              ``{"ok", "cancelled"}``
 ``.../estop``              (none)                                              ``{"ok"}``
-``.../rearm``              (none)                                              ``{"ok"}`` or an error
+``.../rearm``              ``{"confirm": true}``                               ``{"ok"}`` or an error
+``.../reset``              ``{"confirm": true}``                               ``{"ok"}`` or an error
 ``.../status``             (none)                                              the status (below)
 =========================  ==================================================  ===========================
 
-A bad request gets ``{"ok": false, "error": "..."}`` naming what is wrong; the daemon keeps serving.
-The status — state, current task, queue, last result — is also published on ``.../status`` at every
-transition and result. On SIGTERM/SIGINT the daemon cancels the running task (a jerk-limited stop),
-brings the robot to rest, finishes the recording and exits 0.
+A handler acts only on a query for exactly its key: a wildcard (``rlgp/**``, ``**``,
+``rlgp/executive/*``) that Zenoh routes to every queryable it intersects gets no reply and runs nothing.
+Leaving a safety state is an operator's explicit request: ``rearm`` (ESTOPPED -> IDLE) and ``reset``
+(FAULT -> IDLE) need ``{"confirm": true}``, and a goal is refused while the executive is in FAULT or
+ESTOPPED (the reply names the request that clears it); goals queued when the executive faults or is
+e-stopped are dropped, so none runs on the operator's later reset.
 
-The daemon declares nothing outside its key space. On a real network, restrict who may put goals with
-Zenoh's access control and TLS (see README, "Daemon").
+A bad request gets ``{"ok": false, "error": "..."}`` naming what is wrong (at most ``MAX_ERROR`` chars);
+the daemon keeps serving. The status — state, current task, queue, last result — is also published on
+``.../status`` at every transition and result. On SIGTERM/SIGINT the daemon cancels the running task (a
+jerk-limited stop), brings the robot to rest, finishes the recording and exits 0.
+
+The daemon declares nothing outside its key space. Who may ask is the Zenoh configuration's business
+(``--zenoh-config``): mutual TLS on the listen endpoint and ``access_control`` rules per client
+certificate's common name (see README, "Daemon"). One file serves both of the daemon's sessions (the
+robot's, with the zenoh backend, and the clients'), so its rules admit the robot's certificate too.
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ import logging
 import queue
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,20 +53,28 @@ from rlgp_exec.executive.states import ExecState, Transition
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.literals import parse_goal
 
-__all__ = ["KEYS", "Daemon", "DaemonOptions"]
+__all__ = ["KEYS", "Daemon", "DaemonOptions", "request"]
 
 log = logging.getLogger(__name__)
 
-KEYS = ("goal", "cancel", "estop", "rearm", "status")
+KEYS = ("goal", "cancel", "estop", "rearm", "reset", "status")
+DEFAULT_LISTEN = "tcp/127.0.0.1:7450"
 MAX_QUEUE = 8
-MAX_PAYLOAD = 64 * 1024  # [bytes] a goal request larger than this is refused unread
+MAX_PAYLOAD = 64 * 1024  # [bytes] a request larger than this is refused unread
+MAX_LITERALS = 64  # per goal, and MAX_LITERAL chars each: the status that echoes a goal stays small
+MAX_LITERAL = 256
+MAX_ERROR = 400  # [chars] of an error message: a reply never echoes a large payload back
+CONFIRM = {"confirm": True}
+# what a goal is refused in, and the request that clears it
+_BLOCKED = {ExecState.FAULT: "reset", ExecState.ESTOPPED: "rearm"}
 
 
 @dataclass(frozen=True)
 class DaemonOptions:
-    listen: str = "tcp/127.0.0.1:7450"  # where clients connect
+    listen: str | None = DEFAULT_LISTEN  # where clients connect; None: the zenoh_config's endpoints
     namespace: str = ""  # key prefix of the daemon's key space
     record_dir: Path | None = None  # one MCAP per task
+    zenoh_config: Path | None = None  # json5 for the client-facing session (TLS, access control)
 
 
 @dataclass(frozen=True)
@@ -74,10 +93,13 @@ class Daemon:
         self.last: dict[str, Any] | None = None
         self.served = 0
         self.progress: dict[str, int] | None = None
+        self.ignored: Counter[str] = Counter()  # queries not for exactly a key of ours, per key reached
+        self.dropped = 0  # queued goals dropped on a fault or e-stop
         self._next_id = 1
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._session: Any = None
+        self._pub: Any = None
         self._decls: list[Any] = []
         self.executive: Executive | None = None
         self._hal: Any = None
@@ -90,10 +112,26 @@ class Daemon:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        import zenoh
+        """Connect to the robot, open the client-facing session, serve. Any failure (no robot, a bad or
+        busy endpoint, an unreadable configuration) closes what was opened and raises RlgpError."""
+        try:
+            self._start()
+        except RlgpError:
+            self._close()
+            raise
+        except Exception as e:  # an unforeseen Zenoh error is still a start-up error: one line, exit 2
+            log.debug("daemon: start-up failed", exc_info=True)
+            self._close()
+            raise RlgpError(f"daemon: start-up failed: {type(e).__name__}: {e}") from e
+        except BaseException:  # KeyboardInterrupt while connecting
+            self._close()
+            raise
 
-        from rlgp_exec.hal.zenoh_keys import session_config
+    def _start(self) -> None:
+        from rlgp_exec.hal.zenoh_keys import open_session, session_config
 
+        # the client-facing configuration is checked before the robot is connected: a typo costs nothing
+        config = session_config(listen=self.opts.listen, config_file=self.opts.zenoh_config)
         self._hal, self._objects = connect(self.scene, self.run_opts)
         self.executive = Executive(
             self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed
@@ -101,20 +139,23 @@ class Daemon:
         self.executive.sm.listeners.append(self._on_transition)
         self.executive.on_recording_error = self._on_recording_error
         self.executive.actor.on_phase = self._on_phase
-        self._session = zenoh.open(session_config(listen=self.opts.listen))
+        self._session = open_session(config, f"daemon: cannot listen on {self.opts.listen or self.opts.zenoh_config}")
         self._pub = self._session.declare_publisher(f"{self.base}/status")
         handlers = {
             "goal": self._on_goal,
             "cancel": self._on_cancel,
             "estop": self._on_estop,
             "rearm": self._on_rearm,
+            "reset": self._on_reset,
             "status": lambda _: self.status(),
         }
         for name, fn in handlers.items():
-            self._decls.append(self._session.declare_queryable(f"{self.base}/{name}", self._guard(fn)))
+            key = f"{self.base}/{name}"
+            self._decls.append(self._session.declare_queryable(key, self._guard(key, fn)))
         self._worker = threading.Thread(target=self._work, name="executive", daemon=True)
         self._worker.start()
-        log.info("daemon: serving %s/{%s} on %s", self.base, ",".join(KEYS), self.opts.listen)
+        where = self.opts.listen or self.opts.zenoh_config
+        log.info("daemon: serving %s/{%s} on %s", self.base, ",".join(KEYS), where)
 
     def stop(self) -> None:
         """Graceful: cancel the running task (jerk-limited stop), wait for rest, close everything."""
@@ -125,29 +166,45 @@ class Daemon:
             self.queue.put_nowait(None)
         if self._worker is not None:
             self._worker.join(timeout=15.0)
+        self._close()
+        log.info("daemon: stopped after %d task(s)", self.served)
+
+    def _close(self) -> None:
         for d in self._decls:
             try:
                 d.undeclare()
             except Exception as e:  # closing anyway
                 log.debug("undeclare: %s", e)
+        self._decls.clear()
         if self._session is not None:
             self._session.close()
+            self._session = None
         if self._objects is not None:
             self._objects.close()
+            self._objects = None
         if self._hal is not None:
             self._hal.shutdown()
-        log.info("daemon: stopped after %d task(s)", self.served)
+            self._hal = None
 
     # ------------------------------------------------------------------ requests
-    def _guard(self, fn):
+    def _guard(self, key: str, fn):
+        from rlgp_exec.hal.zenoh_keys import exact
+
         def handler(query: Any) -> None:
+            if not exact(query, key):  # a wildcard reached us: not a request for this key
+                self.ignored[key] += 1
+                log.debug("daemon: ignored query %s (not exactly %s)", query.key_expr, key)
+                return
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 reply = fn(payload) if len(payload) <= MAX_PAYLOAD else _err(f"payload over {MAX_PAYLOAD} bytes")
             except Exception as e:  # a request never takes the daemon down
                 log.exception("daemon: request failed")
                 reply = _err(f"internal error: {type(e).__name__}: {e}")
-            query.reply(query.key_expr, json.dumps(reply).encode())
+            try:
+                query.reply(key, json.dumps(reply).encode())
+            except Exception as e:  # the client went away, or the session is closing
+                log.debug("daemon: reply to %s: %s", key, e)
 
         return handler
 
@@ -165,6 +222,8 @@ class Daemon:
         lits = req["literals"]
         if not isinstance(lits, list) or not lits or not all(isinstance(x, str) for x in lits):
             return _err("goal: literals must be a non-empty list of strings")
+        if len(lits) > MAX_LITERALS or max(map(len, lits)) > MAX_LITERAL:
+            return _err(f"goal: at most {MAX_LITERALS} literals of at most {MAX_LITERAL} characters")
 
         def fail(where: str, msg: str) -> SceneError:
             return SceneError("goal", where, msg)
@@ -173,7 +232,14 @@ class Daemon:
             parse_goal(lits, self.scene, fail)
         except SceneError as e:
             return _err(str(e))
-        with self._lock:
+        with self._lock:  # against _on_transition: a goal is queued before a fault drops it, or refused
+            assert self.executive is not None
+            blocked = _BLOCKED.get(self.executive.sm.state)
+            if blocked is not None:
+                return _err(
+                    f"goal refused: the executive is {self.executive.sm.state.name}; "
+                    f'an operator must send {blocked} {{"confirm": true}} first'
+                )
             task = _Task(self._next_id, tuple(lits))
             try:
                 self.queue.put_nowait(task)
@@ -182,7 +248,8 @@ class Daemon:
             self._next_id += 1
         return {"ok": True, "task": task.id, "queued": self.queue.qsize()}
 
-    def _on_cancel(self, _: bytes) -> dict[str, Any]:
+    def _drain(self) -> int:
+        """Drop the queued goals (not the stop marker); how many."""
         dropped = 0
         while True:
             try:
@@ -193,6 +260,10 @@ class Daemon:
                 self.queue.put_nowait(None)
                 break
             dropped += 1
+        return dropped
+
+    def _on_cancel(self, _: bytes) -> dict[str, Any]:
+        dropped = self._drain()
         assert self.executive is not None
         self.executive.cancel()
         return {"ok": True, "cancelled": self.current.id if self.current else None, "dropped": dropped}
@@ -202,12 +273,25 @@ class Daemon:
         self.executive.estop()
         return {"ok": True}
 
-    def _on_rearm(self, _: bytes) -> dict[str, Any]:
+    def _on_rearm(self, payload: bytes) -> dict[str, Any]:
         assert self.executive is not None
+        refused = _confirmed("rearm", payload)
+        if refused:
+            return refused
         try:
             self.executive.rearm()
         except RlgpError as e:
             return _err(str(e))
+        return {"ok": True}
+
+    def _on_reset(self, payload: bytes) -> dict[str, Any]:
+        assert self.executive is not None
+        refused = _confirmed("reset", payload)
+        if refused:
+            return refused
+        if self.executive.sm.state is not ExecState.FAULT:
+            return _err(f"reset: the executive is {self.executive.sm.state.name}, not FAULT")
+        self.executive.reset()
         return {"ok": True}
 
     def status(self) -> dict[str, Any]:
@@ -222,6 +306,7 @@ class Daemon:
             "task": None if self.current is None else {"id": self.current.id, "goal": list(self.current.literals)},
             "queued": self.queue.qsize(),
             "served": self.served,
+            "dropped": self.dropped,
             "progress": self.progress if self.current is not None else None,
             "last": self.last,
         }
@@ -233,6 +318,12 @@ class Daemon:
             log.debug("status publish: %s", e)
 
     def _on_transition(self, tr: Transition) -> None:
+        if tr.target in _BLOCKED:
+            with self._lock:
+                dropped = self._drain()
+                self.dropped += dropped
+            if dropped:
+                log.warning("daemon: %s: dropped %d queued goal(s)", tr.target.name, dropped)
         self._publish()
 
     def _on_recording_error(self, why: str) -> None:
@@ -328,21 +419,40 @@ _WAITING = {"robot": "fresh robot state", "rearm": "an operator's rearm", "reset
 
 
 def _err(msg: str) -> dict[str, Any]:
-    return {"ok": False, "error": msg}
+    return {"ok": False, "error": msg if len(msg) <= MAX_ERROR else msg[: MAX_ERROR - 3] + "..."}
+
+
+def _confirmed(what: str, payload: bytes) -> dict[str, Any] | None:
+    """None when ``payload`` is exactly {"confirm": true}; else the refusal."""
+    try:
+        req = json.loads(payload) if payload else None
+    except ValueError:
+        req = None
+    if req != CONFIRM or not isinstance(req.get("confirm"), bool):  # 1 == True: not a confirmation
+        return _err(f'{what}: changes the robot\'s safety state: send {{"confirm": true}} to confirm')
+    return None
 
 
 def request(
-    endpoint: str, what: str, payload: dict[str, Any] | None = None, namespace: str = "", timeout_s: float = 5.0
+    endpoint: str | None,
+    what: str,
+    payload: dict[str, Any] | None = None,
+    namespace: str = "",
+    timeout_s: float = 5.0,
+    zenoh_config: str | Path | None = None,
 ) -> dict[str, Any]:
-    """A client call: one query to a daemon at ``endpoint``; the JSON reply (or an error dict)."""
-    import zenoh
-
-    from rlgp_exec.hal.zenoh_keys import session_config
+    """A client call: one query to a daemon at ``endpoint`` (None: the ``zenoh_config``'s connect endpoints);
+    the JSON reply (or an error dict). ``rearm`` and ``reset`` are sent confirmed: calling them is the
+    operator's explicit request."""
+    from rlgp_exec.hal.zenoh_keys import open_session, session_config
 
     if what not in KEYS:
         raise RlgpError(f"unknown daemon request {what!r}; valid: {list(KEYS)}")
+    if what in ("rearm", "reset") and payload is None:
+        payload = CONFIRM
     prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
-    s = zenoh.open(session_config(connect=endpoint))
+    where = endpoint or zenoh_config
+    s = open_session(session_config(connect=endpoint, config_file=zenoh_config), f"request: cannot open {where}")
     try:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
@@ -351,6 +461,6 @@ def request(
                 if r.ok is not None:
                     return json.loads(r.ok.payload.to_bytes())
             time.sleep(0.1)  # not connected yet
-        return _err(f"no daemon answered at {endpoint} within {timeout_s} s")
+        return _err(f"no daemon answered at {where} within {timeout_s} s")
     finally:
         s.close()

@@ -35,6 +35,7 @@ class RunOptions:
     record: Path | None = None
     endpoint: str | None = None  # zenoh
     namespace: str = ""  # zenoh
+    zenoh_config: Path | None = None  # zenoh: json5 (TLS certificates, access control)
     can_interface: str = "virtual"
     can_channel: str = "rlgp"
     connect_timeout_s: float = 10.0
@@ -53,6 +54,8 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
         if opts.endpoint:
             options["endpoint"] = opts.endpoint
         options["namespace"] = opts.namespace
+        if opts.zenoh_config is not None:
+            options["config_file"] = str(opts.zenoh_config)
     elif opts.backend == "can":
         options.update(interface=opts.can_interface, channel=opts.can_channel)
     hal = make_backend(opts.backend, scene.robot.name, **options)

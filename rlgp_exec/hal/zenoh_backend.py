@@ -4,7 +4,15 @@ server), CDR payloads, peer session connecting to one endpoint. Keys: ``robots/<
 State arrives on three keys (joint_states, odom, runstop) plus faults; every payload is decoded
 defensively and rejected (counted in :attr:`rejects`, logged) when malformed, of the wrong type, non-finite
 or naming joints the robot does not have. The heartbeat is the robot's liveliness token together with
-fresh joint states and odometry (wall-clock age below ``heartbeat_timeout``).
+fresh joint states and odometry (wall-clock age below ``heartbeat_timeout``). A state sample is taken
+only from exactly its key: a put on a wildcard (``hsrb/**``) that intersects it is rejected.
+
+The robot side holds when it hears nothing from the executive for 0.5 s while commanded (its own
+deadline, not the transport's lease). Commands stream at the control rate while the robot moves; while the
+last commands were at rest (planning, idle, faulted, a single position target) this backend sends a
+keepalive on ``rlgp/heartbeat/executive`` every ``KEEPALIVE_S``. Not after a moving command (feed-forward
+joint velocity, a base twist above ``REST_BASE``): a control loop that hangs mid-motion, this thread
+still alive, must let the robot's deadline stop it, not mask it.
 """
 
 from __future__ import annotations
@@ -19,12 +27,16 @@ import numpy as np
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, RobotState
-from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
+from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
 from rlgp_exec.robot import load_robot
 
 __all__ = ["ZenohBackend"]
 
 log = logging.getLogger(__name__)
+
+KEEPALIVE_S = 0.1  # [s] keepalive period at rest: 5 per robot-side deadline (0.5 s)
+REST_BASE = 0.05  # [m/s, rad/s] a twist below this is a hold (the executive's odometry correction at rest)
+REST_JOINT = 1e-6  # [rad/s, m/s] feed-forward velocity below which a setpoint is a hold
 
 
 class ZenohBackend(RobotInterface):
@@ -33,14 +45,21 @@ class ZenohBackend(RobotInterface):
     def __init__(
         self,
         robot: str = "hsr",
-        endpoint: str = DEFAULT_ENDPOINT,
+        endpoint: str | None = None,
         namespace: str = "",
         heartbeat_timeout: float = 0.25,
         control_period: float = 0.01,
+        config_file: str | None = None,
     ) -> None:
         super().__init__(load_robot(robot), heartbeat_timeout)
         self.keys = load_key_map(robot, namespace)
-        self.endpoint = endpoint
+        # no endpoint: the config file's connect endpoints, else the default one
+        self.endpoint = endpoint if endpoint is not None or config_file is not None else DEFAULT_ENDPOINT
+        self.config_file = config_file  # json5: TLS certificates, access control
+        self._keepalive_stop = threading.Event()
+        self._keepalive: threading.Thread | None = None
+        self.keepalives = 0  # sent
+        self._moving = {"arm": False, "base": False}  # the last setpoint / twist sent was a motion
         self.control_period = float(control_period)
         self._lock = threading.Lock()
         self._session: Any = None
@@ -60,25 +79,62 @@ class ZenohBackend(RobotInterface):
 
     # ------------------------------------------------------------------ lifecycle hooks
     def _on_configure(self) -> None:
-        import zenoh
-
-        s = zenoh.open(session_config(connect=self.endpoint))
+        config = session_config(connect=self.endpoint, config_file=self.config_file)
+        s = open_session(config, f"zenoh: cannot connect to {self.endpoint or self.config_file}")
         self._session = s
+        try:
+            self._declare(s)
+        except Exception:
+            self._on_shutdown()  # a half-declared session is closed, not left running
+            raise
+        log.info("zenoh: connected to %s (namespace %r)", self.endpoint or self.config_file, self.keys.namespace)
+
+    def _declare(self, s: Any) -> None:
         k = self.keys
         self._decls += [
-            s.declare_subscriber(k["joint_states"].key, self._on_joint_states),
-            s.declare_subscriber(k["odom"].key, self._on_odom),
-            s.declare_subscriber(k["runstop"].key, self._on_runstop),
-            s.declare_subscriber(k["faults"].key, self._on_faults),
+            s.declare_subscriber(k["joint_states"].key, self._exact("joint_states", self._on_joint_states)),
+            s.declare_subscriber(k["odom"].key, self._exact("odom", self._on_odom)),
+            s.declare_subscriber(k["runstop"].key, self._exact("runstop", self._on_runstop)),
+            s.declare_subscriber(k["faults"].key, self._exact("faults", self._on_faults)),
             s.liveliness().declare_subscriber(k.alive_robot, self._on_alive, history=True),
         ]
         for t in k.topics.values():
             if t.direction == "command":
                 self._pubs[t.name] = s.declare_publisher(t.key)
+        self._pubs["heartbeat"] = s.declare_publisher(k.heartbeat)
         self._token = s.liveliness().declare_token(k.alive_executive)
-        log.info("zenoh: connected to %s (namespace %r)", self.endpoint, k.namespace)
+        self._keepalive_stop.clear()
+        self._keepalive = threading.Thread(target=self._keepalive_loop, name="zenoh-keepalive", daemon=True)
+        self._keepalive.start()
+
+    def _exact(self, topic: str, fn: Any) -> Any:
+        key = self.keys[topic].key
+
+        def cb(sample: Any) -> None:
+            if exact(sample, key):
+                fn(sample)
+            else:
+                self.rejects.reject("wildcard", f"{topic}: sample on {sample.key_expr}, not {key}")
+
+        return cb
+
+    def _keepalive_loop(self) -> None:
+        n = 0
+        while not self._keepalive_stop.wait(KEEPALIVE_S):
+            if any(self._moving.values()):  # the command stream is the heartbeat; its silence must show
+                continue
+            n += 1
+            try:
+                self._pubs["heartbeat"].put(rc.encode_float64(float(n)))
+                self.keepalives += 1
+            except Exception as e:  # the session is closing
+                log.debug("zenoh: keepalive: %s", e)
 
     def _on_shutdown(self) -> None:
+        self._keepalive_stop.set()
+        if self._keepalive is not None:
+            self._keepalive.join(timeout=1.0)
+            self._keepalive = None
         if self._session is None:
             return
         try:
@@ -111,6 +167,9 @@ class ZenohBackend(RobotInterface):
     def _on_alive(self, sample: Any) -> None:
         import zenoh
 
+        if not exact(sample, self.keys.alive_robot):
+            self.rejects.reject("wildcard", f"robot liveliness on {sample.key_expr}, not {self.keys.alive_robot}")
+            return
         alive = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
             self._robot_alive = alive
@@ -196,6 +255,7 @@ class ZenohBackend(RobotInterface):
         pub.put(payload)
 
     def _send_setpoint(self, sp: JointSetpoint) -> None:
+        self._moving["arm"] = bool(np.any(np.abs(sp.dq) > REST_JOINT))
         index = {n: i for i, n in enumerate(sp.names)}
         for t in self.keys.joint_topics():
             mine = [n for n in t.joints if n in index]
@@ -205,6 +265,7 @@ class ZenohBackend(RobotInterface):
                 self._put(t.name, rc.encode_trajectory(sub, self.control_period))
 
     def _send_base_velocity(self, vx: float, vy: float, wz: float) -> None:
+        self._moving["base"] = max(abs(vx), abs(vy), abs(wz)) > REST_BASE
         self._put("cmd_vel", rc.encode_twist(vx, vy, wz))
 
     def _send_gripper(self, cmd: GripperCommand) -> None:
