@@ -77,9 +77,10 @@ def _ask(client, what: str, payload: object = None) -> dict | None:
 def _idle(daemon: Daemon) -> None:
     """Back to IDLE, whichever test (or xdist order) left the shared daemon e-stopped."""
     ex = daemon.executive
+    if ex.sm.state is ExecState.FAULT:
+        ex.reset()
     if ex.sm.state is ExecState.ESTOPPED:
         ex.rearm()
-    ex.reset()
     assert ex.sm.state is ExecState.IDLE
 
 

@@ -253,18 +253,19 @@ def test_queued_goals_wait_for_fresh_robot_state_instead_of_failing(daemon, monk
     assert daemon.last["status"] == "succeeded", daemon.last
 
 
-def test_goals_queued_before_an_estop_wait_for_the_operators_rearm(daemon):
+def test_goals_queued_before_an_estop_are_dropped_and_nothing_runs_on_rearm(daemon):
     ex = daemon.executive
     _on_entering(ex, S.EXECUTING, _from_another_thread(ex.estop))
     assert _goal(daemon)["ok"] and _goal(daemon, ["(on block table)"])["ok"]
-    assert _until(lambda: daemon.last is not None and daemon.status()["waiting"] == "rearm")
+    assert _until(lambda: daemon.last is not None)
     assert daemon.last["status"] == "estopped" and daemon.status()["state"] == "estopped"
-    time.sleep(0.5)
-    assert daemon.last["task"] == 1 and daemon.status()["waiting"] == "rearm"  # task 2 was not consumed
+    assert daemon.status()["dropped"] == 1 and daemon.queue.qsize() == 0
+    refused = _goal(daemon)
+    assert refused["ok"] is False and "rearm" in refused["error"]
     ex.sm.listeners.pop()
     ex.rearm()
-    assert _until(lambda: daemon.last["task"] == 2)
-    assert daemon.last["status"] == "succeeded", daemon.last
+    time.sleep(0.5)
+    assert daemon.served == 1 and daemon.status()["state"] == "idle"
 
 
 def test_a_worker_that_dies_latches_fault_refuses_goals_and_says_why(daemon, monkeypatch):
