@@ -180,3 +180,14 @@ def test_a_callers_budget_bounds_the_planners_own():
         plan = plan_scene(load_scene(SCENES / "table_clearing_hsr.toml"))
     assert not plan.success and plan.reason.startswith("budget: 0.5"), plan.reason
     assert cpu_clock() - c0 < 0.5 + SLACK_S
+
+
+def test_rlgp_with_a_one_micron_block_ends_within_its_budget():
+    """pick_place_pr2 with block_c 1 um thick (built here): its held-object cover is capped, so level 3
+    builds 64 spheres' rows, not ~141,000."""
+    scene = load_scene(SCENES / "pick_place_pr2.toml")
+    tiny = tuple(replace(o, size=(1e-6, 1e-6, o.size[2])) if o.name == "block_c" else o for o in scene.objects)
+    c0 = cpu_clock()
+    plan = plan_scene(replace(scene, objects=tiny), time_budget_s=3.0)
+    assert plan.success or plan.reason.startswith("budget: 3 s CPU spent in "), plan.reason
+    assert cpu_clock() - c0 < 3.0 + SLACK_S
