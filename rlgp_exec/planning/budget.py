@@ -10,6 +10,7 @@ NLP starts, IPOPT iterations through ``ipopt_stop``). A check reads the CPU cloc
 and, at most every ``MEMORY_EVERY_S`` of CPU time, the resident set size; past either limit it raises
 ``BudgetError``, which the planner turns into a failed Plan whose reason names the stage
 ("budget: 90 s CPU spent in keyframes of candidate 3"). Without an open budget a check does nothing.
+The module imports nothing of the project but ``errors``: the layers below the planners (``reach``) check too.
 """
 
 from __future__ import annotations

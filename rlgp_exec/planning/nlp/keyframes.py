@@ -352,6 +352,7 @@ def _build(
     picked_at: int | None = None  # the keyframe of the grasp held now (None: the start's, or none)
     aux: list[tuple[ca.SX, ca.SX, tuple[int, ...]]] = []  # pose variables: (P, its expression, keyframes read)
     for k, a in enumerate(actions):
+        budget.check()  # a keyframe's rows grow with the objects and fixtures round it
         row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
         couples.append(())
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k], frames=(*self_rows.frames, *inner_rows.frames))
