@@ -20,7 +20,7 @@ import logging
 import os
 import resource
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 
 import casadi as ca
 
@@ -36,6 +36,7 @@ __all__ = [
     "ipopt_stop",
     "left",
     "rss_bytes",
+    "shared",
     "using",
 ]
 
@@ -181,6 +182,12 @@ def check() -> None:
     b = _ACTIVE.get()
     if b is not None:
         b.check()
+
+
+def shared(ways: int) -> AbstractContextManager[object]:
+    """``Budget.shared`` of the active budget round work forked ``ways`` ways; nothing without one."""
+    b = _ACTIVE.get()
+    return nullcontext() if b is None else b.shared(ways)
 
 
 def left(default: float = float("inf")) -> float:

@@ -105,13 +105,13 @@ def fork_map(fn: Callable[[Item], Result], items: Sequence[Item], workers: int =
     """``[fn(x) for x in items]``, the odd-numbered items in a forked child when ``workers`` >= 2."""
     if workers < 2 or len(items) < 2 or not hasattr(os, "fork"):
         return [fn(x) for x in items]
+    with budget.shared(2):
+        return _forked(fn, items)
+
+
+def _forked(fn: Callable[[Item], Result], items: Sequence[Item]) -> list[Result]:
+    """``fork_map`` with two processes (the active budget already shared)."""
     b = budget.active()
-    with b.shared(2) if b is not None else contextlib.nullcontext():
-        return _forked(fn, items, b)
-
-
-def _forked(fn: Callable[[Item], Result], items: Sequence[Item], b: budget.Budget | None) -> list[Result]:
-    """``fork_map`` with two processes (``b``: the active budget, already shared)."""
     theirs = list(range(1, len(items), 2))
     read_fd, write_fd = os.pipe()
     clock = budget.cpu_clock()

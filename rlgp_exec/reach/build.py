@@ -10,7 +10,6 @@ configurations PyBullet finds collision-free.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import multiprocessing as mp
@@ -165,13 +164,11 @@ def build_graph(
     clock = budget.cpu_clock() if workers > 1 else None
     jobs = [(manip, params, n, params.seed * 1000 + i, clock) for i, n in enumerate(shares)]
     _FORKED["scene"] = scene
-    b = budget.active()
     try:
         if workers == 1:
             results = [_worker(jobs[0])]
         else:  # the workers share what the budget has left (their CPU time counts once they have ended)
-            with b.shared(workers) if b is not None else contextlib.nullcontext(), \
-                    mp.get_context("fork").Pool(workers) as pool:
+            with budget.shared(workers), mp.get_context("fork").Pool(workers) as pool:
                 results = pool.map(_worker, jobs)
     finally:
         _FORKED.clear()
