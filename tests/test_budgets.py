@@ -191,3 +191,35 @@ def test_rlgp_with_a_one_micron_block_ends_within_its_budget():
     plan = plan_scene(replace(scene, objects=tiny), time_budget_s=3.0)
     assert plan.success or plan.reason.startswith("budget: 3 s CPU spent in "), plan.reason
     assert cpu_clock() - c0 < 3.0 + SLACK_S
+
+
+def test_ompl_gets_what_the_budget_has_left():
+    """A base drive OMPL cannot solve (pick_place_pr2's table between the ends, the base's box no wider than
+    theirs) takes its whole time limit, 30 s here; under a 0.5 s budget it ends within the budget, before
+    one of its three attempts' share (10 s of OMPL's wall clock) is up."""
+    import time
+
+    from rlgp_exec.reach import WorldChecker, nominal_q
+    from rlgp_exec.reach.ompl_plan import plan_ompl
+    from rlgp_exec.robot import load_robot
+
+    scene = load_scene(SCENES / "pick_place_pr2.toml")
+    model = load_robot(scene.robot.name)
+    checker = WorldChecker(scene, model.manipulator().group)
+    try:
+        q1 = nominal_q(model, scene)
+        q2 = q1.copy()
+        q2[1], q2[2] = -q1[1], q1[2] + math.pi  # behind the table, facing it
+        assert not checker(q1) and not checker(q2)
+        box = np.minimum(q1[:2], q2[:2]), np.maximum(q1[:2], q2[:2])
+        c0, t0 = cpu_clock(), time.perf_counter()
+        with using(Budget(0.5)):
+            try:
+                path = plan_ompl(checker, np.array([0, 1, 2]), q1, q2, *box, timeout=30.0)
+            except BudgetError:
+                path = None
+        assert path is None
+        assert cpu_clock() - c0 < 0.5 + SLACK_S
+        assert time.perf_counter() - t0 < 10.0
+    finally:
+        checker.close()
