@@ -112,8 +112,8 @@ class Budget:
             self._next_memory = now + MEMORY_EVERY_S
             grown = rss_bytes() - self.rss0
             if grown > self.memory_bytes:
-                self._spent = (f"budget: memory grew by {grown / 2**30:.2f} GiB (cap {self.memory_bytes / 2**30:.2f} "
-                               f"GiB) in {self.where()}")
+                self._spent = (f"budget: memory grew by {grown / 2**20:.0f} MiB (cap {self.memory_bytes / 2**20:.0f} "
+                               f"MiB) in {self.where()}")
         return self._spent
 
     def check(self) -> None:
