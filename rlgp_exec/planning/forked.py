@@ -6,7 +6,9 @@ Used where one plan has independent numeric work that is not thread-safe to shar
 serialises its calls across threads): level 3's segments. A result is a flat dict of numbers, strings
 and numpy arrays; the child's come back through a pipe as one JSON header and the arrays' raw bytes
 (no pickle). A child that fails, dies or does not answer within the timeout is killed and its items are
-done here instead, so the answer never depends on the child. POSIX only (``os.fork``); elsewhere, or
+done here instead, so the answer never depends on the child. The active budget (``planning.budget``) is
+shared: while the child runs, each process may spend half of what is left (the child's CPU time reaches
+the parent's clock only once it has finished). POSIX only (``os.fork``); elsewhere, or
 with ``workers`` < 2, the loop runs here.
 """
 
@@ -24,6 +26,8 @@ from collections.abc import Callable, Sequence
 from typing import TypeVar
 
 import numpy as np
+
+from rlgp_exec.planning import budget
 
 __all__ = ["Result", "decode", "encode", "fork_map"]
 
@@ -101,13 +105,23 @@ def fork_map(fn: Callable[[Item], Result], items: Sequence[Item], workers: int =
     """``[fn(x) for x in items]``, the odd-numbered items in a forked child when ``workers`` >= 2."""
     if workers < 2 or len(items) < 2 or not hasattr(os, "fork"):
         return [fn(x) for x in items]
+    with budget.shared(2):
+        return _forked(fn, items)
+
+
+def _forked(fn: Callable[[Item], Result], items: Sequence[Item]) -> list[Result]:
+    """``fork_map`` with two processes (the active budget already shared)."""
+    b = budget.active()
     theirs = list(range(1, len(items), 2))
     read_fd, write_fd = os.pipe()
+    clock = budget.cpu_clock()
     pid = os.fork()
     if pid == 0:  # the child: its items, one frame, and out without the parent's exit handlers
         code = 0
         try:
             os.close(read_fd)
+            if b is not None:
+                b.forked(clock)
             frame = encode([fn(items[k]) for k in theirs])
         except BaseException:  # whatever it was, the parent does these items itself
             frame, code = b"", 1

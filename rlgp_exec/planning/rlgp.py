@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, using
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
@@ -32,7 +32,7 @@ from rlgp_exec.planning.sequence import SequenceGeometry
 from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.grounding import ground_scene
 from rlgp_exec.planning.symbolic.heuristics import distance_cost, goal_lower_bound
-from rlgp_exec.planning.symbolic.model import GroundAction
+from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem
 from rlgp_exec.planning.symbolic.search import best_first
 from rlgp_exec.planning.validate import goal_holds, validate_plan
 from rlgp_exec.reach import RGParams
@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 PLANNERS = ("rlgp", "lgp")
 PER_ACTION = 1.0
 UNREACHABLE = 1e3
-TIME_BUDGET_S = 90.0  # [s] CPU time (``budget.cpu_clock``) after which no new candidate is tried
+TIME_BUDGET_S = 90.0  # [s] CPU time (``budget.cpu_clock``) a plan call may spend, every stage included
 GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
@@ -129,13 +129,17 @@ def plan_scene(
     seed: int = 0,
     time_budget_s: float = TIME_BUDGET_S,
     memory: PlannerMemory | None = None,
+    memory_cap_bytes: int = MEMORY_CAP_BYTES,
 ) -> Plan:
     """Plan the scene's goal; the returned Plan is validated by replay (``success``) or says why not.
-    No new candidate is started after ``time_budget_s`` [s] of CPU time (the one under way finishes). ``memory``
-    keeps the reachability graph, and what this call teaches it, for the next call."""
+    The call spends at most ``time_budget_s`` [s] of CPU time and grows the process by at most
+    ``memory_cap_bytes`` (``planning.budget``: checked inside every stage; once spent, the Plan fails with a
+    reason "budget: ..." naming the stage and candidate). ``memory`` keeps the reachability graph, and what
+    this call teaches it, for the next call."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
-    t0, c0 = time.perf_counter(), cpu_clock()
+    t0 = time.perf_counter()
+    budget = Budget(time_budget_s, memory_cap_bytes)
     try:
         problem = ground_scene(scene, manipulators=[goal_manipulator(scene)])
     except SymbolicError as e:  # before any geometry: a bad goal is named at once
@@ -149,40 +153,62 @@ def plan_scene(
         if already.ok:
             dt = time.perf_counter() - t0
             return Plan(True, planner, (), np.zeros((0, 0)), (), dt, 0, 0, already, "the goal already holds")
-    geo = SequenceGeometry(scene, params, seed, memory)
+    with using(budget):
+        try:
+            geo = SequenceGeometry(scene, params, seed, memory)
+        except BudgetError as e:
+            log.info("%s: %s", planner, e)
+            return Plan(False, planner, (), np.zeros((0, 0)), (), time.perf_counter() - t0, 0, 0, None, str(e))
+        try:
+            return _candidates(geo, problem, planner, max_candidates, max_expansions, t0, budget)
+        finally:
+            geo.close()
+
+
+def _candidates(
+    geo: SequenceGeometry, problem: GroundProblem, planner: str, max_candidates: int, max_expansions: int,
+    t0: float, budget: Budget,
+) -> Plan:
+    """``plan_scene``'s loop over the symbolic search's candidates."""
+    scene = geo.scene
+    cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
+    search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
+    reasons: list[str] = []
+
+    def failed(reason: str) -> Plan:
+        return Plan(
+            False, planner, (), np.zeros((0, geo.model.nq)), (), time.perf_counter() - t0, geo.n_nlp,
+            search.stats.expanded, None, reason,
+        )
+
     try:
-        cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
-        search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
-        reasons: list[str] = []
-
-        def failed(reason: str) -> Plan:
-            return Plan(
-                False, planner, (), np.zeros((0, geo.model.nq)), (), time.perf_counter() - t0, geo.n_nlp,
-                search.stats.expanded, None, reason,
-            )
-
-        for k, cand in enumerate(search):
-            if k >= max_candidates:
-                break
-            if cpu_clock() - c0 > time_budget_s:
-                first = reasons[0] if reasons else "none"
-                return failed(f"timed out: {time_budget_s:.0f} s CPU budget spent on {k} candidates; first: {first}")
-            actions = to_actions(cand.actions)
-            if isinstance(actions, str):
-                reasons.append(actions)
-                continue
-            result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0, deadline=c0 + time_budget_s)
-            log.info("%s candidate %d %s: %s", planner, k, cand, result.reason)
-            if result.success:
-                return result
-            reasons.append(f"{cand}: {result.reason}")
-            if len(reasons) == 1:  # the first geometric failure: is the goal reachable at all?
-                infeasible = unreachable_goal(geo, problem)
-                if infeasible is not None:
-                    return failed(infeasible)
-        if search.stats.exhausted and not reasons:
-            return failed("infeasible: no symbolic plan reaches the goal")
-        why = "; ".join(reasons[-3:]) or "no symbolic plan within the search budget"
-        return failed(f"no valid plan after {len(reasons)} candidates: {why}")
-    finally:
-        geo.close()
+        with budget.at("symbolic search", "candidate 0"):
+            for k, cand in enumerate(search):
+                if k >= max_candidates:
+                    break
+                budget.check()
+                actions = to_actions(cand.actions)
+                if isinstance(actions, str):
+                    reasons.append(actions)
+                    continue
+                with budget.at("geometry", f"candidate {k}"):
+                    result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0)
+                log.info("%s candidate %d %s: %s", planner, k, cand, result.reason)
+                if result.success:
+                    return result
+                reasons.append(f"{cand}: {result.reason}")
+                if len(reasons) == 1:  # the first geometric failure: is the goal reachable at all?
+                    with budget.at("reachability of the goal", f"candidate {k}"):
+                        infeasible = unreachable_goal(geo, problem)
+                    if infeasible is not None:
+                        return failed(infeasible)
+                budget.scope = f"candidate {k + 1}"  # the search's next expansions are for the next one
+    except BudgetError as e:
+        geo.reset()  # a stage cut short leaves no drawer, object or carried box in the shared graph's world
+        first = f"; first: {reasons[0]}" if reasons else ""
+        log.info("%s: %s after %d candidates", planner, e, len(reasons))
+        return failed(f"{e}{first}")
+    if search.stats.exhausted and not reasons:
+        return failed("infeasible: no symbolic plan reaches the goal")
+    why = "; ".join(reasons[-3:]) or "no symbolic plan within the search budget"
+    return failed(f"no valid plan after {len(reasons)} candidates: {why}")

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.hand import (
@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 # where a plan's time goes (``Plan.stages``): this object's set-up (robot, graph, PyBullet world, IK), the
 # keyframe NLPs (level 2), the guided paths (approaches, graph queries, transports), level 3, the replay
 STAGES = ("setup", "keyframes", "guided", "level3", "replay")
+_STAGE_NAMES = {"guided": "guided paths", "level3": "level 3"}  # in a budget's reason
 
 
 class _NoLayout(NamedTuple):
@@ -124,13 +125,25 @@ class SequenceGeometry:
     @contextmanager
     def _stage(self, name: str) -> Iterator[None]:
         t0 = time.perf_counter()
+        b = budget.active()
         try:
-            yield
+            if b is None:
+                yield
+            else:
+                with b.at(_STAGE_NAMES.get(name, name)):
+                    yield
         finally:
             self.stages[name] += time.perf_counter() - t0
 
     def close(self) -> None:
         self.checker.close()
+
+    def reset(self) -> None:
+        """The world of the graph's queries back to the scene's start (after a stage cut short)."""
+        self.rg.carrying(None)
+        self.rg.drawers({c: 0.0 for c in self.drawers})
+        self.checker.set_objects([])
+        self.checker.touch_knob(None)
 
     @property
     def hand_start(self) -> FloatArray:
@@ -147,17 +160,14 @@ class SequenceGeometry:
         planner: str = "rlgp",
         nodes_expanded: int = 0,
         t_start: float | None = None,
-        deadline: float | None = None,
     ) -> Plan:
         """Keyframes, guided paths and replay for one action sequence. Vertical grasps first; hands
         leaning up to 0.6 rad (which reach further across a table) when the vertical attempt fails.
-        ``deadline`` (``budget.cpu_clock()`` [s]): no new keyframe start or tilt after it."""
+        The active budget (``planning.budget``) is checked inside every stage: ``BudgetError`` once spent."""
         t0 = time.perf_counter() if t_start is None else t_start
         reasons: list[str] = []
         for tilt in (0.0, 0.6):
-            if reasons and deadline is not None and cpu_clock() > deadline:
-                break
-            result = self._attempt(actions, planner, nodes_expanded, t0, tilt, deadline)
+            result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
             if result.success:
                 return result
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
@@ -281,12 +291,12 @@ class SequenceGeometry:
         return path[keep]
 
     def _attempt(
-        self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float, deadline: float | None
+        self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float
     ) -> Plan:
         names = tuple(str(a) for a in actions)
         self.n_nlp += 1
         with self._stage("keyframes"):
-            kf = self._keyframes(actions, tilt, deadline)
+            kf = self._keyframes(actions, tilt)
 
         def result(phases: tuple[Phase, ...], validation: Validation | None, reason: str) -> Plan:
             return Plan(
@@ -332,7 +342,7 @@ class SequenceGeometry:
         reason = "ok" if validation.ok else "; ".join([*validation.collisions[:3], *validation.unmet])
         return result(tuple(phases), validation, reason)
 
-    def _keyframes(self, actions: list[Action], tilt: float, deadline: float | None) -> KeyframeResult:
+    def _keyframes(self, actions: list[Action], tilt: float) -> KeyframeResult:
         return solve_keyframes(
             self.model,
             self.scene,
@@ -347,7 +357,6 @@ class SequenceGeometry:
             body=self.body,
             lift_room=APPROACH,
             seeds=self._graph_seeds,
-            deadline=deadline,
             cache=self._nlp_cache,
             mesh_hand=self.mesh_hand,
             inner=self.inner,

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.drawer_replay import DrawerMotion, drawer_literal_holds, settle
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
@@ -222,7 +223,9 @@ def _follow(world, k: int, ph: Phase, held: dict[str, _Held], step: float, toler
     motion = None
     if ph.drives_drawer and ph.knob is not None:
         motion = DrawerMotion.start(world, ph.knob, model.fk(ph.path[0], tool))
-    for q in sample_path(world, ph.path, step):
+    for i, q in enumerate(_samples(world, ph.path, step)):
+        if not i & 63:
+            budget.check()
         robot.set_q(q)
         if motion is not None:
             violation = motion.follow(world, model.fk(q, tool))
@@ -257,12 +260,23 @@ def sample_path(world, path: FloatArray, step: float) -> FloatArray:
     last: checking it twice cost 12-15 % of a replay)."""
     if len(path) < 2:
         return np.asarray(path, float)
-    parts = [interpolate_path(world, a, b, step) for a, b in itertools.pairwise(path)]
-    return np.vstack([parts[0], *(q[1:] for q in parts[1:])])
+    return np.vstack(list(_samples(world, path, step)))
 
 
-def interpolate_path(world, a: FloatArray, b: FloatArray, step: float) -> FloatArray:
+SAMPLE_CHUNK = 4096  # samples interpolated at once: a very long segment is never held in memory whole
+
+
+def _samples(world, path: FloatArray, step: float) -> Iterator[FloatArray]:
+    """``sample_path``'s configurations, one at a time (in chunks of ``SAMPLE_CHUNK``)."""
+    if len(path) < 2:
+        yield from np.asarray(path, float)
+        return
     limits = world.robot_model.limits
-    d = limits.difference(b, a)
-    n = max(1, int(np.ceil(np.abs(d).max() / step)))
-    return limits.wrap(a[None] + np.linspace(0.0, 1.0, n + 1)[:, None] * d[None])
+    for k, (a, b) in enumerate(itertools.pairwise(path)):
+        d = limits.difference(b, a)
+        n = max(1, int(np.ceil(np.abs(d).max() / step)))
+        for lo in range(0 if k == 0 else 1, n + 1, SAMPLE_CHUNK):
+            t = np.arange(lo, min(lo + SAMPLE_CHUNK, n + 1)) * (1.0 / n)  # as np.linspace(0, 1, n + 1)
+            if lo + SAMPLE_CHUNK > n:
+                t[-1] = 1.0
+            yield from limits.wrap(a[None] + t[:, None] * d[None])

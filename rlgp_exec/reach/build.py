@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rlgp_exec.planning import budget
 from rlgp_exec.reach.checker import CLEARANCE, WorldChecker
 from rlgp_exec.reach.graph import GraphCacheError, ReachabilityGraph, RGParams, cache_key
 from rlgp_exec.reach.ik import ReachIK
@@ -100,7 +101,10 @@ _FORKED: dict = {}  # the scene for forked workers (scenes hold mapping proxies,
 
 
 def _worker(args: tuple) -> dict:
-    manipulator, params, n_target, seed = args
+    manipulator, params, n_target, seed, clock = args
+    b = budget.active()
+    if b is not None and clock is not None:  # a forked worker: the CPU time left, on its own clock
+        b.forked(clock)
     scene = _FORKED["scene"]
     model = load_robot(scene.robot.name)
     checker = WorldChecker(scene, model.manipulator(manipulator).group)
@@ -157,13 +161,14 @@ def build_graph(
     manip = model.manipulator(manipulator).name
     workers = max(1, min(workers or os.cpu_count() or 1, params.samples))
     shares = [params.samples // workers + (i < params.samples % workers) for i in range(workers)]
-    jobs = [(manip, params, n, params.seed * 1000 + i) for i, n in enumerate(shares)]
+    clock = budget.cpu_clock() if workers > 1 else None
+    jobs = [(manip, params, n, params.seed * 1000 + i, clock) for i, n in enumerate(shares)]
     _FORKED["scene"] = scene
     try:
         if workers == 1:
             results = [_worker(jobs[0])]
-        else:
-            with mp.get_context("fork").Pool(workers) as pool:
+        else:  # the workers share what the budget has left (their CPU time counts once they have ended)
+            with budget.shared(workers), mp.get_context("fork").Pool(workers) as pool:
                 results = pool.map(_worker, jobs)
     finally:
         _FORKED.clear()

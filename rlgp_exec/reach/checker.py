@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning import budget
 from rlgp_exec.reach.sweep import LOOKAHEAD, planar_base, sweep
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.robot.pybullet_body import quat_xyzw
@@ -270,12 +271,14 @@ class WorldChecker:
         )
 
     def __call__(self, q: FloatArray) -> bool:
+        budget.check()  # sampling and IK loops check through here
         self.calls += 1
         return self.distance(q, upto=self.clearance) < self.clearance or self.self_collision(q)
 
     def penetrates(self, q: FloatArray) -> bool:
         """True when q penetrates a fixture or itself (no clearance asked: a grasp may touch the table's
         air gap; the graph's own nodes and edges keep CLEARANCE)."""
+        budget.check()
         self.calls += 1
         return self.distance(q, upto=self.clearance) < 0.0 or self.self_collision(q)
 
@@ -283,6 +286,7 @@ class WorldChecker:
         """True when the straight motion q1 -> q2 (yaw the short way) comes within CLEARANCE of a
         fixture or self-collides; ``part`` restricts what is checked (module docstring: "changed" has
         no self-collision samples, "fixed" no objects)."""
+        budget.check()
         pairs = self._pairs(part)
         if not pairs:
             return False

@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning import budget
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import fixture_boxes
@@ -240,6 +241,7 @@ class ReachIK:
 
     def _solve(self, x0: FloatArray, z0: FloatArray) -> IKResult:
         """One IPOPT run of Eq. 2 (``solve`` without the memo)."""
+        budget.check()
         res = self._solver(
             x0=z0,
             p=np.r_[x0, self.home_arm],

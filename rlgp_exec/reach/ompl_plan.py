@@ -18,6 +18,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from rlgp_exec.planning import budget
 from rlgp_exec.reach.checker import CLEARANCE, WorldChecker
 from rlgp_exec.robot.model import FloatArray, RobotModel
 
@@ -118,7 +119,8 @@ def plan_ompl(
     for attempt in range(3):  # OMPL's sampled motion check can cut a corner the exact check refuses
         if attempt:
             ss.clear()
-        if not ss.solve(timeout / 3) or not ss.haveExactSolutionPath():
+        budget.check()  # not inside ``valid``: OMPL calls it, and an exception must not cross into OMPL
+        if not ss.solve(max(0.01, min(timeout / 3, budget.left()))) or not ss.haveExactSolutionPath():
             continue
         sol = ss.getSolutionPath()
         # a bounded vertex reduction only (OMPL's full simplify can take seconds with this validity

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning import budget
 from rlgp_exec.robot.model import FloatArray
 
 if TYPE_CHECKING:
@@ -163,6 +164,8 @@ def _advance(
     while True:
         q = obstacles.robot_q(s)
         ch.calls += 1
+        if not ch.calls & 15:  # a far motion takes millions of samples
+            budget.check()
         ch.robot.set_q(q, only_changed=True)
         held_placed = False
         margin = MIN_ADVANCE * (s < 1.0)

@@ -15,14 +15,14 @@ import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.solver import FEAS_TOL, RESTART_ABOVE, Feasibility, GraphSolver, SolveResult
 from rlgp_exec.robot.model import FloatArray
 
-__all__ = ["Checker", "Conflict", "DeadlineError", "ExtractOptions", "find_conflict"]
+__all__ = ["Checker", "Conflict", "ExtractOptions", "find_conflict"]
 
 log = logging.getLogger(__name__)
 FILTER_MAX = RESTART_ABOVE  # conflicts up to this size are made minimal (QuickXplain) and refuted
@@ -56,13 +56,9 @@ class Conflict:
         return " ; ".join(str(f) for f in self.factors)
 
 
-class DeadlineError(Exception):
-    """The planner's time budget ran out in the middle of a conflict search (internal: caught by it)."""
-
-
 class Checker:
     """Feasibility of subgraphs: the database first (if any), else an NLP solve (counted); raises
-    ``DeadlineError`` once ``cpu_clock()`` passes ``deadline``. A subgraph asked about again
+    ``budget.BudgetError`` before a solve once the active budget is spent. A subgraph asked about again
     within one plan's check is answered from the earlier solve (the time search, the convergence step
     and QuickXplain revisit the same windows); ``last`` is that solve's result either way."""
 
@@ -71,9 +67,8 @@ class Checker:
         solver: GraphSolver,
         guess: Mapping[Var, FloatArray],
         db: SubgraphDB | None = None,
-        deadline: float = float("inf"),
     ) -> None:
-        self.solver, self.guess, self.db, self.deadline = solver, dict(guess), db, deadline
+        self.solver, self.guess, self.db = solver, dict(guess), db
         self.last: SolveResult | None = None
         self.restart = True  # a large NLP found infeasible gets the solver's second start (``RESTARTED``)
         self._seen: dict[frozenset[Factor], tuple[tuple[Factor, ...], SolveResult]] = {}
@@ -93,8 +88,7 @@ class Checker:
                 res = replace(res, violations=tuple(viol[f] for f in factors))
             self.last = res
             return res.feasible
-        if cpu_clock() > self.deadline:
-            raise DeadlineError
+        budget.check()
         if self.db is not None:
             known = self.db.lookup(factors)
             if known is not None:

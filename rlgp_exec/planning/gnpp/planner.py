@@ -24,13 +24,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, cpu_clock, using
 from rlgp_exec.planning.gnpp.conflicts import (
     FILTER_MAX,
     FILTER_MAX_NO_ROBOT,
     Checker,
     Conflict,
-    DeadlineError,
     ExtractOptions,
     find_conflict,
 )
@@ -133,6 +132,7 @@ def plan_gnpp(
     trajectories: bool = True,
     on_nlp: Callable[[SolverRun], None] | None = None,
     lm_verdicts: bool = False,
+    memory_cap_bytes: int = MEMORY_CAP_BYTES,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
@@ -143,11 +143,36 @@ def plan_gnpp(
     arm NLPs answered by Levenberg-Marquardt (``solver.LM_MAX_FACTORS``: measured, not the default), else
     IPOPT answers every NLP of the search (``refute``'s checks of a fixed-base arm's conflicts are LM's either way:
     ``GraphSolver.lm_refute``). A plan whose replay fails is laid out once more from its graph-NLP point moved
-    inside its inequality rows (``GraphSolver.polish``) before it is blocked."""
+    inside its inequality rows (``GraphSolver.polish``) before it is blocked. The budget (``timeout_s``, and
+    ``memory_cap_bytes`` of growth, ``planning.budget``) is checked inside every stage; once spent, the
+    status is TIMEOUT with a reason "budget: ..." naming the stage and iteration."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
+    t0 = time.perf_counter()
+    b = Budget(timeout_s, memory_cap_bytes)
+    with using(b):
+        try:
+            return _plan(scene, variant, logic, max_iterations, memory, trajectories, on_nlp, lm_verdicts, b)
+        except BudgetError as e:  # in the set-up (the loop returns its own)
+            log.info("%s: %s", variant, e)
+            plan = Plan(False, variant, (), np.zeros((0, 0)), (), time.perf_counter() - t0, 0, 0, None, str(e))
+            return GnppResult(GnppStatus.TIMEOUT, plan, (), (), None, 0, 0.0, {"cpu_s": b.spent()})
+
+
+def _plan(
+    scene: Scene,
+    variant: str,
+    logic: Logic,
+    max_iterations: int,
+    memory: PlannerMemory | None,
+    trajectories: bool,
+    on_nlp: Callable[[SolverRun], None] | None,
+    lm_verdicts: bool,
+    budget: Budget,
+) -> GnppResult:
+    """``plan_gnpp`` under its open ``budget``."""
     opts = VARIANTS[variant]
-    t0, c0 = time.perf_counter(), cpu_clock()
+    t0, c0 = time.perf_counter(), budget.start
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene)
     ik, solver = TopIK(lib), GraphSolver(lib)
@@ -207,38 +232,39 @@ def plan_gnpp(
         return GnppResult(status, plan, tuple(forbidden), tuple(found), n0, it, logic_s, counters)
 
     for it in range(1, max_iterations + 1):
-        left = timeout_s - (cpu_clock() - c0)
-        if left <= 0:
-            return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s CPU ({'; '.join(reasons[-2:])})", it=it)
-        tl = time.perf_counter()
-        actions, status, why = _logic_plan(task, forbidden, logic, left)
-        logic_s += time.perf_counter() - tl
-        if actions is None:
-            assert status is not None
-            proof = ""
-            if status is GnppStatus.INFEASIBLE:
-                proof = f" (every logic plan contains one of {len(found)} learnt conflicts"
-                if blocked_plans:  # not a proof: a whole plan is blocked after a solver, layout or replay failure
-                    proof += f" or is one of {blocked_plans} plans blocked after failing, which proves nothing"
-                proof += ")"
-                if wide:
-                    proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
-                        2 * lib.finger_inner, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
-                    )
-            return result(status, f"{status.value}: {why}{proof}", it=it)
-        if n0 is None:
-            n0 = len(actions)
-        bad = [a for a in actions if a.name not in GEOMETRIC]
-        states = task.simulate(actions)
-        if bad:
-            forbidden.append(_whole(states))
-            reasons.append(f"{bad[0]}: no geometry for {bad[0].name}")
-            continue
-        graph = factors_of(states, lib.arms, objects, mobile)
-        guess = initial_guess(lib, ik, states, variables(graph))
-        check = Checker(solver, guess, db, deadline=c0 + timeout_s)
-        values: dict | None  # the graph-NLP's solution (None: every conflict found was refuted)
+        budget.scope, budget.stage = f"iteration {it}", "logic plan"
         try:
+            budget.check()
+            tl = time.perf_counter()
+            actions, status, why = _logic_plan(task, forbidden, logic, budget.left())
+            logic_s += time.perf_counter() - tl
+            if actions is None:
+                assert status is not None
+                proof = ""
+                if status is GnppStatus.INFEASIBLE:
+                    proof = f" (every logic plan contains one of {len(found)} learnt conflicts"
+                    if blocked_plans:  # not a proof: a whole plan is blocked after a solver, layout or replay failure
+                        proof += f" or is one of {blocked_plans} plans blocked after failing, which proves nothing"
+                    proof += ")"
+                    if wide:
+                        proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
+                            2 * lib.finger_inner, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
+                        )
+                return result(status, f"{status.value}: {why}{proof}", it=it)
+            if n0 is None:
+                n0 = len(actions)
+            bad = [a for a in actions if a.name not in GEOMETRIC]
+            states = task.simulate(actions)
+            if bad:
+                forbidden.append(_whole(states))
+                reasons.append(f"{bad[0]}: no geometry for {bad[0].name}")
+                continue
+            budget.stage = "initial guess"
+            graph = factors_of(states, lib.arms, objects, mobile)
+            guess = initial_guess(lib, ik, states, variables(graph))
+            check = Checker(solver, guess, db)
+            values: dict | None  # the graph-NLP's solution (None: every conflict found was refuted)
+            budget.stage = "graph-NLP"
             if opts is None:  # one-way: the full graph, the whole plan blocked on failure
                 if not check.feasible(graph):
                     forbidden.append(_whole(states))
@@ -248,37 +274,40 @@ def plan_gnpp(
             else:
                 conflict, values, n_refuted = _checked_conflict(check, graph, opts)
                 refuted += n_refuted
-        except DeadlineError:
-            return result(GnppStatus.TIMEOUT, f"no plan within {timeout_s} s CPU ({'; '.join(reasons[-2:])})", it=it)
-        if conflict is not None:
-            found.append(conflict)
-            forbidden.append(to_forbidden(generalise(conflict.factors)))
-            log.info("%s iteration %d: %s", variant, it, forbidden[-1])
-            continue
-        if values is None:  # every conflict found was refuted: no proof either way, block this plan
+            if conflict is not None:
+                found.append(conflict)
+                forbidden.append(to_forbidden(generalise(conflict.factors)))
+                log.info("%s iteration %d: %s", variant, it, forbidden[-1])
+                continue
+            if values is None:  # every conflict found was refuted: no proof either way, block this plan
+                forbidden.append(_whole(states))
+                blocked_plans += 1
+                reasons.append("conflicts refuted by other starts, or too large to check")
+                continue
+            budget.stage = "layout and replay"
+            laid = _realise(scene, lib, ik, traj, variant, actions, values, t0, solver.n_solves)
+            if isinstance(laid, Plan) and not laid.success:
+                polished = solver.polish(graph, values)
+                if polished is not values:  # once more, the keyframes off their clearance bounds
+                    log.info("%s iteration %d: replay failed (%s); again from a polished point", variant, it,
+                             laid.reason)
+                    again = _realise(scene, lib, ik, traj, variant, actions, polished, t0, solver.n_solves)
+                    laid = again if isinstance(again, Plan) else laid
+            if isinstance(laid, str):
+                forbidden.append(_whole(states))
+                blocked_plans += 1
+                reasons.append(laid)
+                continue
+            plan = laid
+            if plan.success:
+                return result(GnppStatus.SOLVED, "ok", plan, it)
+            log.info("%s iteration %d: replay failed: %s", variant, it, plan.reason)
+            reasons.append(f"replay: {plan.reason}")
             forbidden.append(_whole(states))
             blocked_plans += 1
-            reasons.append("conflicts refuted by other starts, or too large to check")
-            continue
-        laid = _realise(scene, lib, ik, traj, variant, actions, values, t0, solver.n_solves)
-        if isinstance(laid, Plan) and not laid.success:
-            polished = solver.polish(graph, values)
-            if polished is not values:  # once more, the keyframes off their clearance bounds
-                log.info("%s iteration %d: replay failed (%s); again from a polished point", variant, it, laid.reason)
-                again = _realise(scene, lib, ik, traj, variant, actions, polished, t0, solver.n_solves)
-                laid = again if isinstance(again, Plan) else laid
-        if isinstance(laid, str):
-            forbidden.append(_whole(states))
-            blocked_plans += 1
-            reasons.append(laid)
-            continue
-        plan = laid
-        if plan.success:
-            return result(GnppStatus.SOLVED, "ok", plan, it)
-        log.info("%s iteration %d: replay failed: %s", variant, it, plan.reason)
-        reasons.append(f"replay: {plan.reason}")
-        forbidden.append(_whole(states))
-        blocked_plans += 1
+        except BudgetError as e:
+            why = f" ({'; '.join(reasons[-2:])})" if reasons else ""
+            return result(GnppStatus.TIMEOUT, f"{e}{why}", it=it)
     return result(GnppStatus.TIMEOUT, f"no plan in {max_iterations} iterations ({'; '.join(reasons[-2:])})")
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from rlgp_exec.casadi_call import BufferedFunction
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.gnpp.assembly import assemble
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import structure, variables
@@ -142,9 +143,15 @@ CLEAR_GAP = 0.3
 LM_MAX_FACTORS = 60
 
 
+STOP_ABOVE = 60  # factors: a larger graph-NLP's iterations also end once the budget is spent (``budget.ipopt_stop``)
+
+
 def ipopt_options(n_factors: int, search: bool) -> dict:
-    """The IPOPT options of a graph-NLP of ``n_factors`` factors (``search``: with ``SEARCH``)."""
-    return {**IPOPT, **(SEARCH if search else {}), **_limits(n_factors)}
+    """The IPOPT options of a graph-NLP of ``n_factors`` factors (``search``: with ``SEARCH``); above
+    ``STOP_ABOVE`` factors (a whole plan's, up to seconds) IPOPT stops once the budget is spent too (the small
+    ones' ``max_cpu_time`` is a second or so, their iterations too cheap for a callback)."""
+    stop = budget.ipopt_stop() if n_factors > STOP_ABOVE else {}
+    return {**IPOPT, **(SEARCH if search else {}), **_limits(n_factors), **stop}
 
 
 def _limits(n_factors: int) -> dict:
@@ -457,6 +464,7 @@ class GraphSolver:
             elif built.solver is not None:
                 c0 = time.process_time()
                 res = built.solver(x0=x0, p=x0, lbx=lbx, ubx=ubx, lbg=built.lbg, ubg=built.ubg)
+                budget.check()  # IPOPT stopped by ``budget.ipopt_stop``: no verdict
                 cpu = time.process_time() - c0
                 self.iters.append(int(built.solver.stats()["iter_count"]))
                 xs = np.asarray(res["x"]).reshape(-1)

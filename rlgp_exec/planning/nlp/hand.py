@@ -35,6 +35,7 @@ __all__ = [
     "SelfRows",
     "arm_link_spheres",
     "body_obstacles",
+    "cover_refusal",
     "finger_spheres",
     "inner_obstacles",
     "link_box_spheres",
@@ -52,14 +53,19 @@ SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's 
 MID_INSET = 0.09  # [m] a mesh body's chest box (``inner_obstacles``) ends this far inside each shoulder's axis
 
 
-def _box_cover(size: FloatArray) -> list[tuple[FloatArray, float]]:
+MAX_COVER_SPHERES = 64  # spheres at most in a box's cover (a thin box gets a coarser row, ``_box_cover``)
+MAX_COVER_BULGE = 0.01  # [m] how far a coarser row may reach out past the box's long edges, beyond the usual
+
+
+def _box_cover(size: FloatArray, max_spheres: int = MAX_COVER_SPHERES) -> list[tuple[FloatArray, float]]:
     """Spheres (centre in the box frame (3,), radius [m]) in a row along a box's long axis that cover
     the whole box: spaced s <= the cross-section's half diagonal c, radius sqrt((s/2)^2 + c^2), the
-    first and last s/2 from the ends."""
+    first and last s/2 from the ends; at most ``max_spheres`` of them (a thinner box's row is coarser:
+    its spheres reach further past its edges, ``cover_refusal``)."""
     long = int(np.argmax(size))
     length = float(size[long])
     c = float(np.hypot(*np.delete(size, long))) / 2
-    n = max(1, math.ceil(length / c))
+    n = min(max_spheres, max(1, math.ceil(length / c))) if c > 0 else max_spheres
     s = length / n
     r = math.hypot(s / 2, c)
     out = []
@@ -68,6 +74,20 @@ def _box_cover(size: FloatArray) -> list[tuple[FloatArray, float]]:
         centre[long] = -length / 2 + s / 2 + j * s
         out.append((centre, r))
     return out
+
+
+def cover_refusal(size: FloatArray, max_spheres: int = MAX_COVER_SPHERES) -> str | None:
+    """Why a box of ``size`` [m] has no sphere cover of at most ``max_spheres`` within ``MAX_COVER_BULGE`` of
+    what the uncapped cover reaches past its sides (a long, thin box: a pole), or None."""
+    size = np.asarray(size, float)
+    if size.shape != (3,) or not np.all(np.isfinite(size)) or np.any(size < 0):
+        return f"box size {size.tolist()}: expected 3 finite sizes >= 0 [m]"
+    c = float(np.hypot(*np.delete(size, int(np.argmax(size))))) / 2
+    r = _box_cover(size, max_spheres)[0][1]
+    if r - math.hypot(c / 2, c) > MAX_COVER_BULGE:
+        return (f"box {np.round(size, 6).tolist()} m: {max_spheres} spheres reach {r - c:.3f} m past its sides "
+                f"(a fine cover's {math.hypot(c / 2, c) - c:.3f} m, at most {MAX_COVER_BULGE:.3f} m more)")
+    return None
 
 
 def finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:

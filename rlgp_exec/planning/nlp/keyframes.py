@@ -32,7 +32,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
-from rlgp_exec.planning.budget import cpu_clock
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
@@ -352,6 +352,7 @@ def _build(
     picked_at: int | None = None  # the keyframe of the grasp held now (None: the start's, or none)
     aux: list[tuple[ca.SX, ca.SX, tuple[int, ...]]] = []  # pose variables: (P, its expression, keyframes read)
     for k, a in enumerate(actions):
+        budget.check()  # a keyframe's rows grow with the objects and fixtures round it
         row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
         couples.append(())
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k], frames=(*self_rows.frames, *inner_rows.frames))
@@ -493,7 +494,7 @@ def _build(
                             "ipopt.tol": 1e-7, "ipopt.max_resto_iter": MAX_RESTO_ITER}
     opts["hess_lag"] = _hess_lag(x, pp, cost, g_all, labels)
     opts["jac_g"] = ca.Function("jac_g", [x, pp], [g_all, _jacobian(g_all, x, n)])
-    solver = ca.nlpsol("keyframes", "ipopt", nlp, {**opts, **LEAN})
+    solver = ca.nlpsol("keyframes", "ipopt", nlp, {**opts, **LEAN, **budget.ipopt_stop()})
     n_aux = 12 * len(aux)
     lo, hi = _keyframe_bounds(model, ik)
     lbx = np.r_[np.tile(lo, K), np.full(n_aux, -np.inf)]
@@ -550,7 +551,6 @@ def solve_keyframes(
     body: Sequence[tuple[str, Box]] = (),
     lift_room: float = 0.0,
     seeds: Callable[[FloatArray], list[FloatArray]] | None = None,
-    deadline: float | None = None,
     cache: dict | None = None,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     inner: Sequence[tuple[str, Box]] = (),
@@ -569,7 +569,8 @@ def solve_keyframes(
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
     nodes near x, nearest first); every other start uses them, the rest a random free base heading.
-    ``deadline`` (``budget.cpu_clock()`` [s]): no new start after it (the best so far is returned).
+    The active budget (``planning.budget``) is checked before every start and by IPOPT's iterations:
+    ``BudgetError`` once spent.
     After a PyBullet rejection the next attempt restarts only the rejected keyframes.
     ``cache``: a dict the caller keeps; the NLP built for this sequence is kept there and reused by the
     next call for the same sequence (another ``max_tilt``: only the tilt bounds differ)."""
@@ -617,6 +618,7 @@ def solve_keyframes(
     def solve(x0: FloatArray) -> tuple[dict, float, str]:
         """One IPOPT run: (result, largest constraint violation, the worst row's label)."""
         r = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        budget.check()  # IPOPT stopped by ``budget.ipopt_stop``: this start's point is not a result
         st = solver.stats()
         log.debug("keyframes solve (%d rows): %s, %d iterations", lbg.size, st["return_status"], st["iter_count"])
         g = np.asarray(r["g"]).reshape(-1)
@@ -628,9 +630,7 @@ def solve_keyframes(
     keep: dict[int, FloatArray] = {}  # keyframes of a failed start to start from again (the others restart)
     tried: list[list[FloatArray]] = [[] for _ in range(K)]  # the initial guesses used at each keyframe
     for _attempt in range(ATTEMPTS):  # initial guesses: each keyframe from position IK at its target
-        if _attempt and deadline is not None and cpu_clock() > deadline:
-            log.info("keyframes: deadline reached after %d starts", _attempt)
-            break
+        budget.check()
         init = attempt_guess(
             _attempt, model=model, ik=ik, actions=actions, targets=targets, footprints_at=footprints_at,
             opening_at=opening_at, drawers=drawers, poses=poses, objs=objs, z_start=z_start, seeds=seeds, rng=rng,

@@ -60,9 +60,10 @@ import scipy.sparse
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.forked import Result, fork_map
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
-from rlgp_exec.planning.nlp.hand import _box_cover, points_clear, self_rows_function
+from rlgp_exec.planning.nlp.hand import _box_cover, cover_refusal, points_clear, self_rows_function
 from rlgp_exec.planning.nlp.keyframes import W_BASE
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene.geometry import Box
@@ -124,6 +125,7 @@ class PathStatus(enum.Enum):
     OK = "ok"
     INFEASIBLE = "infeasible"  # IPOPT ended with constraints violated
     WORSE = "worse"  # feasible but costlier than the warm start (kept out)
+    REFUSED = "refused"  # not optimised: its held object has no sphere cover within the cap (``nlp.hand``)
 
 
 @dataclass(frozen=True)
@@ -458,7 +460,7 @@ def _nlp(model, blocks: list[_Block], idx, w, T: int, max_iter: int, at_guide: b
             **({"ipopt.warm_start_init_point": "yes", "ipopt.bound_push": BOUND_PUSH, "ipopt.bound_frac": BOUND_PUSH}
                if at_guide else {}),
             "jac_g": jac_g}
-    solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, {**opts, **LEAN})
+    solver = ca.nlpsol("path", "ipopt", {"x": x, "f": f, "g": g}, {**opts, **LEAN, **budget.ipopt_stop()})
     return (solver, x, g, jac, np.concatenate(x0), np.concatenate(lbx), np.concatenate(ubx),
             np.asarray(lbg, float), np.asarray(ubg, float))
 
@@ -509,6 +511,12 @@ def optimize_paths(
         """Segment k's block and, unless it is settled, its solve (in this process or ``fork_map``'s child)."""
         t1 = time.perf_counter()
         seg = segments[k]
+        budget.check()
+        refused = cover_refusal(seg.held[0]) if seg.held is not None else None
+        if refused is not None:  # its guide is kept
+            Zr, tau = resample(_unwrapped(model, idx, seg.warm), model.limits.velocity[idx], T)
+            return {"Zw": Zr, "dt": SLACK * tau, "relaxed": 0, "settled": False, "warm": _acc_cost(Zr.T, w),
+                    "rows_s": time.perf_counter() - t1, "refused": f"held object: {refused}"}
         b = _block(model, *shared_of(seg.warm[0]), idx, seg, T, hand)
         out: Result = {"Zw": b.Zw, "dt": b.dt, "relaxed": b.relaxed, "settled": b.settled,
                        "warm": _acc_cost(b.Zw.T, w), "rows_s": time.perf_counter() - t1}
@@ -527,10 +535,12 @@ def optimize_paths(
         Zw, warm = _array(r["Zw"]), _number(r["warm"])
         warm_costs.append(warm)
         build_s += _number(r["rows_s"])
-        if r["settled"]:  # optimal as it is (``_Block.settled``)
+        if r["settled"] or "refused" in r:  # optimal as it is (``_Block.settled``), or not optimised
             Zs.append(Zw)
-            statuses.append(PathStatus.OK)
+            statuses.append(PathStatus.REFUSED if "refused" in r else PathStatus.OK)
             costs.append(warm)
+            if "refused" in r:
+                reasons.append(f"segment {k}: {r['refused']}")
             continue
         build_s, solve_s = build_s + _number(r["build_s"]), solve_s + _number(r["solve_s"])
         iterations, n_var = iterations + int(_number(r["iterations"])), n_var + int(_number(r["n_var"]))
@@ -606,6 +616,7 @@ def _solve(model, blocks: list[_Block], idx, w: FloatArray, T: int, max_iter: in
         t2 = time.perf_counter()
         build_s += t2 - t1
         res = solver(x0=x0 if x_last is None else x_last, lbx=lbx, ubx=ubx, lbg=lbg_a, ubg=ubg_a)  # re-solve: from last
+        budget.check()  # IPOPT stopped by ``budget.ipopt_stop``: no result
         solve_s += time.perf_counter() - t2
         iterations += int(solver.stats().get("iter_count", 0))
         xs = x_last = np.asarray(res["x"]).reshape(-1)

@@ -17,6 +17,7 @@ import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
+from rlgp_exec.planning import budget
 from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 
@@ -147,6 +148,8 @@ class BestFirst(Iterator[CandidatePlan]):
                 log.info("best_first %s: stopped at max_expansions=%d", problem.name, self.max_expansions)
                 raise StopIteration
             self.stats.expanded += 1
+            if not self.stats.expanded & 255:
+                budget.check()
             prefix: list[GroundAction] | None = None
             for action, succ in problem.successors(node.state):
                 if self._visits.get(succ, 0) >= self.max_visits or node.on_path(succ):
