@@ -39,14 +39,7 @@ import numpy as np
 from rlgp_exec.hal import can_nodes as cn
 from rlgp_exec.hal.can_nodes import CanNode, load_can_map, pack, unpack
 from rlgp_exec.hal.interface import RobotInterface
-from rlgp_exec.hal.types import (
-    GripperAction,
-    GripperCommand,
-    HalError,
-    JointSetpoint,
-    Lifecycle,
-    RobotState,
-)
+from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, Lifecycle, RobotState
 from rlgp_exec.hal.validate import RejectCounter
 from rlgp_exec.robot import load_robot
 
@@ -134,7 +127,7 @@ class CanBackend(RobotInterface):
         self._lo = dict(zip(self.limits.names, self.limits.lower, strict=True))
         self._hi = dict(zip(self.limits.names, self.limits.upper, strict=True))
         #: frames addressed to our nodes that this HAL did not send (another master on the bus)
-        self.foreign = RejectCounter("hal[can] frames from another master")
+        self.foreign = RejectCounter("hal[can] frames not from this master")
         self.fault_reason = ""  # why the HAL went to ERROR
         self._latched = False  # our e-stop (or our fault): no drive may be enabled
         self._enable_wanted = False  # activate() enabled the drives and no e-stop since
@@ -319,7 +312,7 @@ class CanBackend(RobotInterface):
             recent = now - w.qs_sent <= self.map.bus.sync_period
         if not latched:  # a drive (dis)abled by another master goes back to what activate() set
             state = "operation enabled" if enabled else "disabled"
-            self.foreign.reject(state, f"{self._what(nid)} reports {state}, not commanded by this HAL: undone")
+            self.foreign.reject("foreign_enable", f"{self._what(nid)} reports {state}, not commanded here: undone")
             self._rpdo2(nid, cn.CW_DISABLE_VOLTAGE if enabled else cn.CW_ENABLE, 0, 0)  # mode 0: kept
             return
         if newly:
@@ -385,7 +378,9 @@ class CanBackend(RobotInterface):
         """An RPDO or SDO request to one of our nodes: not ours, so another master is on the bus."""
         nid, fn, raw = can_id & 0x7F, can_id & 0x780, bytes(data)
         kind = {0x200: "RPDO1", 0x300: "RPDO2", 0x600: "SDO request"}[fn]
-        self.foreign.reject(kind, f"{kind} 0x{can_id:X} [{raw.hex()}] to {self._what(nid)}")
+        self.foreign.reject(
+            f"foreign_{kind.split()[0].lower()}", f"{kind} 0x{can_id:X} [{raw.hex()}] to {self._what(nid)}"
+        )
         if self._latched and not (fn == 0x300 and raw[:2] == cn.CW_QUICK_STOP.to_bytes(2, "little")):
             self._quick_stop(nid)
         if fn == 0x600:
@@ -394,10 +389,10 @@ class CanBackend(RobotInterface):
     def _on_foreign_nmt(self, can_id: int, data: Any, ts: float) -> None:
         raw = bytes(data)
         if len(raw) != 2 or raw[0] not in cn.NMT_COMMANDS:
-            self.foreign.reject("NMT", f"malformed NMT frame [{raw.hex()}]")
+            self.foreign.reject("foreign_nmt", f"malformed NMT frame [{raw.hex()}]")
             return
         targets = [n for n in self._nodes if raw[1] in (0, n)]
-        self.foreign.reject("NMT", f"NMT {cn.NMT_COMMANDS[raw[0]]} for node {raw[1]} from another master")
+        self.foreign.reject("foreign_nmt", f"NMT {cn.NMT_COMMANDS[raw[0]]} for node {raw[1]}")
         for nid in targets:
             if self._latched:
                 self._quick_stop(nid)
