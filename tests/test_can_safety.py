@@ -32,6 +32,7 @@ FLEX = 12  # arm_flex_joint's node
 NODES = (11, 12, 13, 14, 15, 16, 17, 18, 20)
 STILL = 5e-3  # [m|rad] a joint this close to where it was has not moved
 STOPPED = {"quick_stop", "fault"}
+FUZZ_SEED, FUZZ_CASES = 20261201, 90  # cases per phase (ACTIVE, e-stopped)
 # [rad] an impersonated enable moves a joint until the HAL quick-stops it again: at most 12 mrad (one 10 ms
 # control period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once; four periods of slack
 BURST = 0.05
@@ -183,6 +184,15 @@ def test_another_master_cannot_leave_a_drive_unwatched_or_the_hal_stale(frame, c
         assert _wait(lambda: set(r.drive_states().values()) == {"fault"}, 2.0), r.drive_states()
 
 
+def test_a_drive_disabled_by_another_master_is_enabled_again():
+    with rig(consumer_timeout_ms=2000) as r:
+        r.send(0x300 + FLEX, cn.pack("rpdo2", cn.CW_DISABLE_VOLTAGE, 0, 0))
+        assert _wait(lambda: r.drive_states()[FLEX] == "switched_on", 1.0)
+        assert _wait(lambda: r.drive_states()[FLEX] == "enabled", 2.0)
+        assert r.hal.foreign.counts() == {"foreign_rpdo2": 1, "foreign_enable": 1}, r.hal.foreign.counts()
+        assert _moves(r)
+
+
 def test_a_node_that_cannot_be_reinitialised_faults_the_hal(monkeypatch):
     with rig(sdo_timeout=0.1) as r:
         sdo = r.server._sdo
@@ -230,6 +240,40 @@ def test_a_watchdog_disabled_out_of_sight_is_found_by_the_audit(caplog):
         assert _wait(r.armed, 3.0)
         assert f"node {FLEX} (arm_flex_joint): heartbeat objects 0x1017=20 ms, 0x1016:01=0x00000000" in caplog.text
         assert r.settled() and _moves(r)
+
+
+def test_a_bus_that_echoes_our_frames_is_not_another_master():
+    """With receive_own_messages (some adapters do the same) the HAL's own NMT, SDO and PDO frames come back
+    to it: they start no re-initialisation and count as nothing foreign."""
+    ch = f"safety-{uuid.uuid4().hex}"
+    sim = SimRobot("hsr")
+    server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
+    server.start()
+    hal = make_backend("can", bus=can.Bus(interface="virtual", channel=ch, receive_own_messages=True))
+    assert isinstance(hal, CanBackend)
+    rogue = can.Bus(interface="virtual", channel=ch)
+    try:
+        hal.configure()
+        assert hal.wait_for_robot(10.0)
+        hal.activate()
+        r = Rig(sim, server, hal, rogue)
+        assert _moves(r)
+        _estop(r)
+        assert hal.rearm().ok
+        assert _wait(lambda: not _state(r).estopped)
+        hal.activate()
+        assert _moves(r, by=0.1)
+        assert hal.foreign.total == 0 and not any(s.reinits for s in hal.node_status()), hal.foreign.counts()
+        r.send(0x000, bytes([0x02, FLEX]))  # one frame that is not ours: one node re-initialised, and no more
+        assert _wait(lambda: hal.node_status()[1].reinits == 1 and r.settled() and r.armed(), 5.0)
+        time.sleep(0.3)
+        assert [s.reinits for s in hal.node_status()] == [0, 1, 0, 0, 0, 0, 0, 0, 0]
+        assert hal.foreign.total == 1, hal.foreign.counts()
+    finally:
+        rogue.shutdown()
+        hal.shutdown()
+        server.stop()
+        sim.close()
 
 
 # ---------------------------------------------------------------------------------------------- e-stop
@@ -313,10 +357,14 @@ def _tracks(r: Rig) -> bool:
     return st is not None and bool(np.allclose(st.q, r.q(), atol=0.05))
 
 
-def _fuzz_frame(rng: random.Random) -> list[tuple[int, bytes]]:
+def _fuzz_case(rng: random.Random) -> tuple[str, list[tuple[int, bytes]]]:
+    kind = rng.choice(("random", "nmt", "nmt", "sdo", "sdo", "emcy", "rpdo2", "rpdo1", "heartbeat", "impersonation"))
+    return kind, _fuzz_frames(rng, kind)
+
+
+def _fuzz_frames(rng: random.Random, kind: str) -> list[tuple[int, bytes]]:
     """One case: a few frames, random or crafted after the CANopen services our nodes use."""
     nid = rng.choice((*NODES, rng.randrange(1, 128)))
-    kind = rng.choice(("random", "nmt", "nmt", "sdo", "sdo", "emcy", "rpdo2", "rpdo1", "heartbeat", "rogue"))
     if kind == "random":
         return [(rng.randrange(0x800), rng.randbytes(rng.randrange(9)))]
     if kind == "nmt":
@@ -357,9 +405,10 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
     """Fixed seed, bounded: cases of random and crafted frames from another master while the HAL is ACTIVE,
     then while it is e-stopped. After each case: no handler failed, the HAL faulted or trusts every node
     again, and then every drive is OPERATIONAL with its watchdog on and the HAL's state is the robot's;
-    while e-stopped nothing moved and every drive is back in quick stop."""
-    rng = random.Random(20261201)
-    n_cases = 90  # per phase
+    while e-stopped nothing moved (a burst impersonating the HAL's rearm + enable: by less than ``BURST``)
+    and every drive is back in quick stop. After each phase rearm() and activate() move the arm."""
+    rng = random.Random(FUZZ_SEED)
+    n_cases = FUZZ_CASES
     figures: Counter[str] = Counter()
     worst = {False: 0.0, True: 0.0}  # largest joint displacement in one case while e-stopped: impersonation?
     for phase in ("active", "estopped"):
@@ -369,7 +418,7 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                 if phase == "estopped":
                     _estop(r)
                 while done < n_cases:
-                    case = _fuzz_frame(rng)
+                    kind, case = _fuzz_case(rng)
                     before = r.q()
                     done += 1
                     figures["cases"] += 1
@@ -380,10 +429,11 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                     assert _wait(r.settled, 5.0), (case, r.hal.node_status())
                     if phase == "estopped":
                         moved = float(np.max(np.abs(r.q() - before)))
-                        impersonation = len(case) > 3
+                        impersonation = kind == "impersonation"
                         worst[impersonation] = max(worst[impersonation], moved)
                         assert moved < (BURST if impersonation else STILL), (case, moved)
-                        figures["unsafe_motions"] += moved >= STILL
+                        figures["impersonations" if impersonation else "other"] += 1
+                        figures["impersonations_moved" if impersonation else "unsafe_motions"] += moved >= STILL
                     if r.hal.lifecycle is Lifecycle.ERROR:
                         figures["hal_faults"] += 1
                         log.info("fuzz: the HAL faulted after %s: %s", case, r.hal.fault_reason)
@@ -398,16 +448,27 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                     assert r.server.rejects.counts().get("internal", 0) == 0, r.server.rejects.last
                 figures["reinits"] += sum(s.reinits for s in r.hal.node_status())
                 figures["foreign"] += r.hal.foreign.total
+                if r.hal.lifecycle is not Lifecycle.ERROR:  # and the robot is the HAL's again
+                    if r.hal.lifecycle is Lifecycle.ACTIVE:
+                        _estop(r)
+                    assert r.hal.rearm().ok
+                    assert _wait(lambda: not _state(r).estopped), _state(r).faults
+                    r.hal.activate()
+                    assert _moves(r, by=-0.2 if _state(r).position("arm_flex_joint") > -1.0 else 0.2)
     log.info(
-        "CAN fuzz: %d cases (%d frames), 0 crashes; while e-stopped: %d cases moved a joint >= %.0e, largest "
-        "displacement %.2e (%.2e by an impersonated rearm + enable); %d node re-initialisations, %d HAL faults, "
-        "%d frames from another master seen",
+        "CAN fuzz: %d cases (%d frames), 0 crashes; while e-stopped: %d/%d cases moved a joint >= %.0e (largest "
+        "%.2e), %d/%d impersonated rearm + enable bursts did (largest %.2e, bound %.0e); %d node "
+        "re-initialisations, %d HAL faults, %d frames from another master seen",
         figures["cases"],
         figures["frames"],
         figures["unsafe_motions"],
+        figures["other"],
         STILL,
         worst[False],
+        figures["impersonations_moved"],
+        figures["impersonations"],
         worst[True],
+        BURST,
         figures["reinits"],
         figures["hal_faults"],
         figures["foreign"],

@@ -30,10 +30,12 @@ import logging
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import canopen
 import numpy as np
 
 from rlgp_exec.hal import can_nodes as cn
@@ -51,6 +53,27 @@ _PLAUSIBLE = 0.5  # [m|rad] feedback further than this outside the joint limits 
 _EMCY_TEXT = {cn.EMCY_HEARTBEAT: "master heartbeat lost", cn.EMCY_LIMITS: "setpoint outside the limits"}
 _ATTEMPTS = 3  # re-initialisations of a node before the HAL faults (a foreign SDO exchange can garble one)
 _FOREIGN_SETTLE = 0.03  # [s] before reading a node back after a foreign SDO request: its exchange ends first
+_ECHO_WINDOW = 0.5  # [s] a frame we sent that comes back this soon is our own (a bus that echoes sends)
+
+
+class _Network(canopen.Network):
+    """canopen's network, remembering what it sent: some buses (receive_own_messages, a few adapters) hand
+    our own frames back, and those are not another master's."""
+
+    def __init__(self, bus: Any) -> None:
+        super().__init__(bus)
+        self._sent: deque[tuple[float, int, bytes]] = deque(maxlen=512)
+        self._sent_lock = threading.Lock()
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        with self._sent_lock:
+            self._sent.append((time.monotonic(), can_id, bytes(data)))
+        super().send_message(can_id, data, remote)
+
+    def sent_by_us(self, can_id: int, data: bytes) -> bool:
+        now = time.monotonic()
+        with self._sent_lock:
+            return any(c == can_id and d == data and now - t <= _ECHO_WINDOW for t, c, d in self._sent)
 
 
 class NodeHealth(enum.Enum):
@@ -87,7 +110,7 @@ class _Watch:
     reinits: int = 0
     qs_sent: float = -np.inf  # last quick stop sent
     qs_acked: bool = True  # it reported quick stop/fault since the e-stop was latched
-    cw_sent: float = -np.inf  # last enable/disable sent to undo another master's
+    cw_sent: float = -np.inf  # last enable / disable voltage we sent: its statusword may lag behind
     enable_fault: bool = False  # it reported operation enabled while e-stopped (until rearm)
 
 
@@ -140,17 +163,16 @@ class CanBackend(RobotInterface):
     # ------------------------------------------------------------------ lifecycle hooks
     def _on_configure(self) -> None:
         import can
-        import canopen
 
         bus = self._bus if self._bus is not None else can.Bus(**self._bus_args)
-        net = canopen.Network(bus)
+        net = _Network(bus)
         self.network = net
         net.subscribe(0x000, self._guard(self._on_foreign_nmt))
         for nid in self._nodes:  # our strict parsers first, canopen's own parsers removed
             net.subscribe(0x180 + nid, self._guard(self._on_tpdo1))
             net.subscribe(0x280 + nid, self._guard(self._on_tpdo2))
             net.subscribe(0x380 + nid, self._guard(self._on_tpdo3))
-            for fn in (0x200, 0x300, 0x600):  # never our own frames: python-can does not echo them
+            for fn in (0x200, 0x300, 0x600):
                 net.subscribe(fn + nid, self._guard(self._on_foreign))
         net.connect()
         bc = self.map.bus
@@ -186,7 +208,7 @@ class CanBackend(RobotInterface):
     def _on_activate(self) -> None:
         self._enable_wanted = True
         for nid in self._nodes:
-            self._rpdo2(nid, cn.CW_ENABLE, cn.MODE_POSITION, 0)
+            self._controlword(nid, cn.CW_ENABLE, cn.MODE_POSITION)
 
     def _on_shutdown(self) -> None:
         self._stop.set()
@@ -299,9 +321,8 @@ class CanBackend(RobotInterface):
             w, latched = self._w[nid], self._latched
             if not latched:
                 enabled = cn.operation_enabled(sw)
-                if enabled == self._enable_wanted or cn.stopped(sw) or now - w.cw_sent <= self.map.bus.sync_period:
+                if enabled == self._enable_wanted or cn.stopped(sw) or now - w.cw_sent <= self.heartbeat_timeout:
                     return
-                w.cw_sent = now
             elif cn.stopped(sw):
                 w.qs_acked = True
                 return
@@ -313,7 +334,7 @@ class CanBackend(RobotInterface):
         if not latched:  # a drive (dis)abled by another master goes back to what activate() set
             state = "operation enabled" if enabled else "disabled"
             self.foreign.reject("foreign_enable", f"{self._what(nid)} reports {state}, not commanded here: undone")
-            self._rpdo2(nid, cn.CW_DISABLE_VOLTAGE if enabled else cn.CW_ENABLE, 0, 0)  # mode 0: kept
+            self._controlword(nid, cn.CW_DISABLE_VOLTAGE if enabled else cn.CW_ENABLE)
             return
         if newly:
             log.error(
@@ -377,6 +398,8 @@ class CanBackend(RobotInterface):
     def _on_foreign(self, can_id: int, data: Any, ts: float) -> None:
         """An RPDO or SDO request to one of our nodes: not ours, so another master is on the bus."""
         nid, fn, raw = can_id & 0x7F, can_id & 0x780, bytes(data)
+        if self.network.sent_by_us(can_id, raw):
+            return
         kind = {0x200: "RPDO1", 0x300: "RPDO2", 0x600: "SDO request"}[fn]
         self.foreign.reject(
             f"foreign_{kind.split()[0].lower()}", f"{kind} 0x{can_id:X} [{raw.hex()}] to {self._what(nid)}"
@@ -388,6 +411,8 @@ class CanBackend(RobotInterface):
 
     def _on_foreign_nmt(self, can_id: int, data: Any, ts: float) -> None:
         raw = bytes(data)
+        if self.network.sent_by_us(can_id, raw):
+            return
         if len(raw) != 2 or raw[0] not in cn.NMT_COMMANDS:
             self.foreign.reject("foreign_nmt", f"malformed NMT frame [{raw.hex()}]")
             return
@@ -508,7 +533,7 @@ class CanBackend(RobotInterface):
         if self._latched:
             self._quick_stop(nid)
         elif self._enable_wanted and self._lifecycle is not Lifecycle.ESTOPPED:
-            self._rpdo2(nid, cn.CW_ENABLE, cn.MODE_POSITION, 0)
+            self._controlword(nid, cn.CW_ENABLE, cn.MODE_POSITION)
 
     def _ensure_heartbeat_objects(self, nid: int) -> str:
         """'' when the node holds our heartbeat objects (re-written when it did not), else why not."""
@@ -578,6 +603,12 @@ class CanBackend(RobotInterface):
         with self._lock:
             self._w[nid].qs_sent = time.monotonic()
         self._rpdo2(nid, cn.CW_QUICK_STOP, 0, 0)
+
+    def _controlword(self, nid: int, cw: int, mode: int = 0) -> None:
+        """Enable or disable voltage (mode 0 keeps the drive's); its statusword is not checked for a while."""
+        with self._lock:
+            self._w[nid].cw_sent = time.monotonic()
+        self._rpdo2(nid, cw, mode, 0)
 
     def _fault(self, reason: str) -> None:
         """Unrecoverable: every drive quick-stopped, the e-stop latched, the HAL in ERROR."""
@@ -681,4 +712,4 @@ class CanBackend(RobotInterface):
                 w.enable_fault = False
         for nid in self._nodes:  # CiA 402: fault reset leaves Fault, disable voltage leaves quick stop
             self._rpdo2(nid, cn.CW_FAULT_RESET, 0, 0)
-            self._rpdo2(nid, cn.CW_DISABLE_VOLTAGE, 0, 0)
+            self._controlword(nid, cn.CW_DISABLE_VOLTAGE)
