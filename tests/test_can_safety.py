@@ -97,14 +97,14 @@ class Rig:
 
 
 @contextmanager
-def rig(consumer_timeout_ms: int | None = None, **hal_options: object) -> Iterator[Rig]:
+def rig(consumer_timeout_ms: int | None = None, echo: bool = False, **hal_options: object) -> Iterator[Rig]:
+    """The rig, the HAL ACTIVE; ``echo``: the HAL's bus hands it its own frames back."""
     ch = f"safety-{uuid.uuid4().hex}"
     sim = SimRobot("hsr")
     server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
     server.start()
-    hal = make_backend(
-        "can", bus=can.Bus(interface="virtual", channel=ch), consumer_timeout_ms=consumer_timeout_ms, **hal_options
-    )
+    bus = can.Bus(interface="virtual", channel=ch, receive_own_messages=echo)
+    hal = make_backend("can", bus=bus, consumer_timeout_ms=consumer_timeout_ms, **hal_options)
     assert isinstance(hal, CanBackend)
     rogue = can.Bus(interface="virtual", channel=ch)
     try:
@@ -245,18 +245,8 @@ def test_a_watchdog_disabled_out_of_sight_is_found_by_the_audit(caplog):
 def test_a_bus_that_echoes_our_frames_is_not_another_master():
     """With receive_own_messages (some adapters do the same) the HAL's own NMT, SDO and PDO frames come back
     to it: they start no re-initialisation and count as nothing foreign."""
-    ch = f"safety-{uuid.uuid4().hex}"
-    sim = SimRobot("hsr")
-    server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
-    server.start()
-    hal = make_backend("can", bus=can.Bus(interface="virtual", channel=ch, receive_own_messages=True))
-    assert isinstance(hal, CanBackend)
-    rogue = can.Bus(interface="virtual", channel=ch)
-    try:
-        hal.configure()
-        assert hal.wait_for_robot(10.0)
-        hal.activate()
-        r = Rig(sim, server, hal, rogue)
+    with rig(echo=True) as r:
+        hal = r.hal
         assert _moves(r)
         _estop(r)
         assert hal.rearm().ok
@@ -269,11 +259,6 @@ def test_a_bus_that_echoes_our_frames_is_not_another_master():
         time.sleep(0.3)
         assert [s.reinits for s in hal.node_status()] == [0, 1, 0, 0, 0, 0, 0, 0, 0]
         assert hal.foreign.total == 1, hal.foreign.counts()
-    finally:
-        rogue.shutdown()
-        hal.shutdown()
-        server.stop()
-        sim.close()
 
 
 # ---------------------------------------------------------------------------------------------- e-stop

@@ -8,14 +8,15 @@ Setpoints go out as RPDO1 (applied by the drives at the next SYNC), the controlw
 e-stop, fault reset / disable voltage = re-arm) and the gripper mode as RPDO2.
 
 Supervision (a thread of its own: SDO transfers cannot run in the receive thread). A node whose heartbeat
-reports another NMT state than OPERATIONAL, a boot-up, or a heartbeat back after a silence, is
-re-initialised: its heartbeat objects (0x1017, 0x1016:01) read back and re-written when changed, the node
-started, then re-enabled only if no e-stop is latched; until then the HAL refuses motion, and if that
-fails the HAL quick-stops every drive and goes to ERROR with the reason. The heartbeat objects are also
-read back at configure, after any SDO request to a node that this HAL did not send, and every
-``audit_period``. While the e-stop is latched, a drive that leaves quick stop is stopped again at once and
-one that reports operation enabled is a fault (in ``RobotState.faults``) until ``rearm()``. An EMCY error
-reset (0x0000) clears a node's EMCY codes only once its statusword no longer reports a fault.
+reports another NMT state than OPERATIONAL, a boot-up or a heartbeat back after a silence, or that an NMT
+frame not sent by this HAL addressed, is re-initialised: its heartbeat objects (0x1017, 0x1016:01) read back
+and re-written when changed, the node started, then re-enabled only if no e-stop is latched; until then the
+HAL refuses motion, and if that fails the HAL quick-stops every drive and goes to ERROR with the reason. The
+heartbeat objects are also read back at configure, after any SDO request to a node that this HAL did not
+send, and every ``audit_period``. While the e-stop is latched, a drive that leaves quick stop is stopped
+again at once and one that reports operation enabled is a fault (in ``RobotState.faults``) until
+``rearm()``; while it is not, a drive enabled or disabled against what ``activate()`` set is set back. An
+EMCY error reset (0x0000) clears a node's EMCY codes only once its statusword no longer reports a fault.
 
 CAN frames carry no sender identity: a node that impersonates the master can send every frame this HAL
 sends, so the HAL can only notice a rogue enable (by the frame or the next statusword) and re-latch the
