@@ -52,8 +52,9 @@ log = logging.getLogger(__name__)
 
 _PLAUSIBLE = 0.5  # [m|rad] feedback further than this outside the joint limits is rejected
 _EMCY_TEXT = {cn.EMCY_HEARTBEAT: "master heartbeat lost", cn.EMCY_LIMITS: "setpoint outside the limits"}
-_ATTEMPTS = 3  # re-initialisations of a node before the HAL faults (a foreign SDO exchange can garble one)
+_ATTEMPTS = 3  # configurations of a node before the HAL faults (a foreign SDO exchange can garble one)
 _FOREIGN_SETTLE = 0.03  # [s] before reading a node back after a foreign SDO request: its exchange ends first
+_ACK_TIMEOUT = 1.0  # [s] for a drive to report the state we commanded before we command it again
 _ECHO_WINDOW = 0.5  # [s] a frame we sent that comes back this soon is our own (a bus that echoes sends)
 
 
@@ -101,7 +102,8 @@ class _Watch:
 
     hb_wall: float = -np.inf
     hb_state: int = 0
-    silent: bool = False  # its heartbeat stopped: checked again when it is back
+    silent: bool = False  # its heartbeat stopped (no motion: stale)
+    probed: bool = False  # asked by SDO for its heartbeat objects during this silence
     fb_wall: float = -np.inf
     status: int = 0  # last statusword
     emcy: set[int] = field(default_factory=set)
@@ -111,7 +113,8 @@ class _Watch:
     reinits: int = 0
     qs_sent: float = -np.inf  # last quick stop sent
     qs_acked: bool = True  # it reported quick stop/fault since the e-stop was latched
-    cw_sent: float = -np.inf  # last enable / disable voltage we sent: its statusword may lag behind
+    cw_sent: float = -np.inf  # last enable / disable voltage we sent
+    cw_acked: bool = True  # it reported that state since (statuswords in flight still show the old one)
     enable_fault: bool = False  # it reported operation enabled while e-stopped (until rearm)
 
 
@@ -187,7 +190,10 @@ class CanBackend(RobotInterface):
             node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout
         net.nmt.send_command(cn.NMT_PRE_OPERATIONAL)  # all nodes
         for nid in self._nodes:
-            why = self._ensure_heartbeat_objects(nid)
+            for _ in range(_ATTEMPTS):  # a late answer on a loaded machine is not yet a broken node
+                why = self._ensure_heartbeat_objects(nid)
+                if not why:
+                    break
             if why:
                 raise HalError(f"can: {self._what(nid)}: {why}")
         self._periodic = net.send_periodic(0x700 + bc.master_node_id, b"\x05", bc.master_heartbeat)
@@ -322,7 +328,10 @@ class CanBackend(RobotInterface):
             w, latched = self._w[nid], self._latched
             if not latched:
                 enabled = cn.operation_enabled(sw)
-                if enabled == self._enable_wanted or cn.stopped(sw) or now - w.cw_sent <= self.heartbeat_timeout:
+                if enabled == self._enable_wanted or cn.stopped(sw):
+                    w.cw_acked |= enabled == self._enable_wanted
+                    return
+                if not w.cw_acked and now - w.cw_sent <= _ACK_TIMEOUT:
                     return
             elif cn.stopped(sw):
                 w.qs_acked = True
@@ -363,8 +372,8 @@ class CanBackend(RobotInterface):
         nid, s = can_id & 0x7F, data[0] & 0x7F
         with self._lock:
             w = self._w[nid]
-            prev, silent = w.hb_state, w.silent
-            w.hb_wall, w.hb_state, w.silent = time.monotonic(), s, False
+            prev = w.hb_state
+            w.hb_wall, w.hb_state, w.silent, w.probed = time.monotonic(), s, False, False
             ours = nid in self._busy and s != 0x00
         if self._supervisor is None or ours or self._lifecycle is Lifecycle.ERROR:
             return
@@ -373,8 +382,6 @@ class CanBackend(RobotInterface):
             self._request(nid, "boot-up: the node was reset")
         elif s != prev:
             self._request(nid, f"NMT state {name} (was {cn.NMT_STATES.get(prev, hex(prev))}), not commanded here")
-        elif silent:
-            self._request(nid, "heartbeat back after a silence")
 
     def _on_emcy(self, can_id: int, data: Any, ts: float) -> None:
         if len(data) != 8:
@@ -457,13 +464,22 @@ class CanBackend(RobotInterface):
                 return
 
     def _check_silence(self) -> None:
+        """A node silent while others talk may have had its heartbeat producer switched off (0x1017 = 0, a
+        reset of its communication): asked once by SDO, and re-configured if so. All silent at once is the
+        bus or the robot gone (or this process starved): stale, nothing to ask."""
         now = time.monotonic()
         with self._lock:
             gone = [n for n, w in self._w.items() if not w.silent and now - w.hb_wall > self.heartbeat_timeout]
             for n in gone:
                 self._w[n].silent = True
-        for n in gone:
-            log.warning("can: %s: heartbeat silent for %.2f s: no motion", self._what(n), self.heartbeat_timeout)
+            alive = not all(w.silent for w in self._w.values())
+            ask = [n for n, w in self._w.items() if w.silent and not w.probed and alive]
+            for n in ask:
+                self._w[n].probed = True
+        if gone:
+            log.warning("can: no heartbeat for %.2f s from %s", self.heartbeat_timeout, [self._what(n) for n in gone])
+        for n in ask:
+            self._ensure_heartbeat_objects(n)  # no answer: gone, and stale until it is back
 
     def _reinit_pending(self) -> None:
         now = time.monotonic()
@@ -493,8 +509,8 @@ class CanBackend(RobotInterface):
         todo = list(nids)
         for _ in range(_ATTEMPTS):
             failed_before, failed = failed, {}
-            with self._lock:  # a silent node is stale, not failed: its heartbeat's return requests it again
-                todo = [n for n in todo if not self._w[n].silent]
+            with self._lock:
+                silent = {n for n in todo if self._w[n].silent}
                 stopped = [n for n in todo if self._w[n].hb_state == 0x04]
             for n in stopped:  # SDO is unavailable in STOPPED
                 self._send(0x000, bytes([cn.NMT_PRE_OPERATIONAL, n]))
@@ -505,6 +521,9 @@ class CanBackend(RobotInterface):
                 if why:
                     failed[n] = why
             ok = [n for n in todo if n not in failed]
+            for n in silent & failed.keys():  # gone, not failed: the return of its heartbeat requests it again
+                log.warning("can: %s: silent and no SDO answer: no motion until it is back", self._what(n))
+                del failed[n]
             t0 = time.monotonic()
             with self._lock:
                 idle = [n for n in ok if self._w[n].hb_state != cn.HB_OPERATIONAL or n in failed_before]
@@ -608,7 +627,7 @@ class CanBackend(RobotInterface):
     def _controlword(self, nid: int, cw: int, mode: int = 0) -> None:
         """Enable or disable voltage (mode 0 keeps the drive's); its statusword is not checked for a while."""
         with self._lock:
-            self._w[nid].cw_sent = time.monotonic()
+            self._w[nid].cw_sent, self._w[nid].cw_acked = time.monotonic(), False
         self._rpdo2(nid, cw, mode, 0)
 
     def _fault(self, reason: str) -> None:
