@@ -33,9 +33,11 @@ NODES = (11, 12, 13, 14, 15, 16, 17, 18, 20)
 STILL = 5e-3  # [m|rad] a joint this close to where it was has not moved
 STOPPED = {"quick_stop", "fault"}
 FUZZ_SEED, FUZZ_CASES = 20261201, 90  # cases per phase (ACTIVE, e-stopped)
-# [rad] an impersonated enable moves a joint until the HAL quick-stops it again: at most 12 mrad (one 10 ms
-# control period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once; four periods of slack
-BURST = 0.05
+# [rad] an impersonated enable moves a joint until the HAL quick-stops it again: 12 mrad (one 10 ms control
+# period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once, 24 mrad seen on a loaded machine; the
+# bound leaves a loaded machine eight periods and still fails a joint that keeps going to the rogue's target
+# 2 rad away
+BURST = 0.1
 
 
 def _wait(pred: Callable[[], bool], timeout: float = 3.0) -> bool:
