@@ -34,9 +34,8 @@ STILL = 5e-3  # [m|rad] a joint this close to where it was has not moved
 STOPPED = {"quick_stop", "fault"}
 FUZZ_SEED, FUZZ_CASES = 20261201, 90  # cases per phase (ACTIVE, e-stopped)
 # [rad] an impersonated enable moves a joint until the HAL quick-stops it again: 12 mrad (one 10 ms control
-# period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once, 24 mrad seen on a loaded machine; the
-# bound leaves a loaded machine eight periods and still fails a joint that keeps going to the rogue's target
-# 2 rad away
+# period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once; eight periods leave a loaded machine
+# room and still fail a joint that keeps going to the rogue's target 2 rad away
 BURST = 0.1
 
 
@@ -101,8 +100,8 @@ class Rig:
 @contextmanager
 def rig(consumer_timeout_ms: int = 500, echo: bool = False, **hal_options: object) -> Iterator[Rig]:
     """The rig, the HAL ACTIVE; ``echo``: the HAL's bus hands it its own frames back. The drives' watchdog
-    on the master at 500 ms, not can_nodes.toml's 100: a loaded machine once delayed the master's heartbeat
-    by 121 ms and every drive faulted mid-test."""
+    on the master at 500 ms, not can_nodes.toml's 100: a loaded machine's scheduling gaps would fault them
+    mid-test."""
     ch = f"safety-{uuid.uuid4().hex}"
     sim = SimRobot("hsr")
     server = CanRobotServer(sim, can.Bus(interface="virtual", channel=ch))
