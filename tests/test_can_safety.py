@@ -242,6 +242,25 @@ def test_a_heartbeat_switched_off_out_of_sight_is_switched_on_again():
         assert _moves(r)
 
 
+def test_a_node_that_goes_silent_during_its_reinitialisation_is_taken_up_when_it_is_back():
+    """Another master sends a node an SDO request, then the robot goes silent (its node set paused) for longer
+    than the node's re-initialisation tries: no fault, stale meanwhile, and the node, in the same NMT state,
+    re-initialised once it is back."""
+    with rig(consumer_timeout_ms=2000, sdo_timeout=0.1) as r:  # the drives' watchdog outlasts the pause
+        r.send(0x600 + FLEX, bytes([0x40, 0x41, 0x60, 0, 0, 0, 0, 0]))  # a read of the statusword
+        time.sleep(0.02)
+        r.server.paused = True
+        time.sleep(0.8)
+        assert r.hal.lifecycle is Lifecycle.ACTIVE and not r.hal.heartbeat_ok(), r.hal.fault_reason
+        r.server.paused = False
+        assert _wait(lambda: r.settled() and r.armed() and r.hal.node_status()[1].reinits == 1, 5.0), (
+            r.hal.node_status(),
+            r.hal.fault_reason,
+        )
+        assert r.hal.lifecycle is Lifecycle.ACTIVE
+        assert _moves(r)
+
+
 def test_a_watchdog_disabled_out_of_sight_is_found_by_the_audit(caplog):
     """A change of 0x1016:01 that never crossed this bus segment (here: written inside the drive) is found
     by the periodic read-back and re-written."""

@@ -372,7 +372,8 @@ class CanBackend(RobotInterface):
         nid, s = can_id & 0x7F, data[0] & 0x7F
         with self._lock:
             w = self._w[nid]
-            prev = w.hb_state
+            # a node left waiting by its re-initialisation (it was silent) is taken up again
+            prev, back = w.hb_state, w.health is NodeHealth.REINIT and nid not in self._pending
             w.hb_wall, w.hb_state, w.silent, w.probed = time.monotonic(), s, False, False
             ours = nid in self._busy and s != 0x00
         if self._supervisor is None or ours or self._lifecycle is Lifecycle.ERROR:
@@ -382,6 +383,8 @@ class CanBackend(RobotInterface):
             self._request(nid, "boot-up: the node was reset")
         elif s != prev:
             self._request(nid, f"NMT state {name} (was {cn.NMT_STATES.get(prev, hex(prev))}), not commanded here")
+        elif back:
+            self._request(nid, "heartbeat back")
 
     def _on_emcy(self, can_id: int, data: Any, ts: float) -> None:
         if len(data) != 8:
@@ -510,7 +513,6 @@ class CanBackend(RobotInterface):
         for _ in range(_ATTEMPTS):
             failed_before, failed = failed, {}
             with self._lock:
-                silent = {n for n in todo if self._w[n].silent}
                 stopped = [n for n in todo if self._w[n].hb_state == 0x04]
             for n in stopped:  # SDO is unavailable in STOPPED
                 self._send(0x000, bytes([cn.NMT_PRE_OPERATIONAL, n]))
@@ -521,7 +523,10 @@ class CanBackend(RobotInterface):
                 if why:
                     failed[n] = why
             ok = [n for n in todo if n not in failed]
-            for n in silent & failed.keys():  # gone, not failed: the return of its heartbeat requests it again
+            now = time.monotonic()
+            with self._lock:
+                silent = {n for n in failed if now - self._w[n].hb_wall > self.heartbeat_timeout}
+            for n in silent:  # gone, not failed: its next heartbeat takes it up again
                 log.warning("can: %s: silent and no SDO answer: no motion until it is back", self._what(n))
                 del failed[n]
             t0 = time.monotonic()
