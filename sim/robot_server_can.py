@@ -1,10 +1,14 @@
 """The simulated CANopen node set: one node per drive of ``robots/<robot>/can_nodes.toml`` on a python-can
 bus, backed by a :class:`SimRobot` stepped in real time.
 
-Per node: NMT (boot-up, start/stop/pre-operational/reset), an expedited SDO server for the heartbeat
-objects (0x1016:01, 0x1017) and a few read-only objects, RPDO1 latched and applied at the next SYNC,
-RPDO2 (controlword, mode, grasp force) applied on reception, TPDOs sent on every SYNC, a heartbeat
-producer and a consumer of the master's heartbeat (quick stop + EMCY 0x8130 when it goes silent).
+Per node: NMT (boot-up, start/stop/pre-operational, reset node, reset communication: the latter clears
+only the communication objects), an expedited SDO server for the heartbeat objects (0x1016:01, 0x1017) and
+a few read-only objects (none of it in STOPPED), RPDO1 latched and applied at the next SYNC, RPDO2
+(controlword, mode, grasp force) applied on reception, TPDOs sent on every SYNC, a heartbeat producer and a
+consumer of the master's heartbeat (Fault + EMCY 0x8130 when it goes silent). The drive state machine is
+the CiA 402 subset of can_nodes.toml, latched like a real drive's: quick stop is left only by disable
+voltage (0x0000), Fault only by fault reset (0x0080) once its cause is gone, and enable (0x000F) is refused
+in both; the drive cannot tell its master's frames from anyone else's.
 Every frame that is malformed (wrong length, RTR, extended id, unknown NMT command, bad SDO request,
 setpoint outside the joint limits) is rejected, counted and logged, and moves nothing.
 
@@ -36,7 +40,7 @@ __all__ = ["CanRobotServer", "open_bus"]
 log = logging.getLogger("sim.robot_server_can")
 
 NMT_STATE = {"PRE-OPERATIONAL": 0x7F, "OPERATIONAL": 0x05, "STOPPED": 0x04}
-NMT_CMD = {0x01: "OPERATIONAL", 0x02: "STOPPED", 0x80: "PRE-OPERATIONAL", 0x81: "RESET", 0x82: "RESET"}
+NMT_CMD = {0x01: "OPERATIONAL", 0x02: "STOPPED", 0x80: "PRE-OPERATIONAL", 0x81: "RESET", 0x82: "RESET_COMM"}
 SDO_ABORT_NO_OBJECT, SDO_ABORT_BAD_CMD, SDO_ABORT_RANGE = 0x06020000, 0x05040001, 0x06090030
 
 
@@ -53,7 +57,11 @@ class _Drive:
         self.mode = cn.MODE_POSITION
         self.hb_ms = 0  # 0x1017
         self.consumer = 0  # 0x1016:01
+        self.fault_code = 0  # the error code of a Fault
         self.last_hb_sent = 0.0
+
+    def fault(self, code: int) -> None:
+        self.drive, self.fault_code, self.pending = "fault", code, None
 
     def statusword(self) -> int:
         sw = 0x3  # ready to switch on, switched on
@@ -120,22 +128,22 @@ class CanRobotServer:
                 if d.hb_ms and (now - d.last_hb_sent) * 1e3 >= d.hb_ms:
                     self._send(0x700 + d.node.id, bytes([NMT_STATE.get(d.nmt, 0x7F)]))
                     d.last_hb_sent = now
-                timeout = d.consumer & 0xFFFF
-                if timeout and d.nmt == "OPERATIONAL" and d.drive == "enabled" and silent_ms > timeout:
-                    d.drive = "quick_stop"
+                if d.nmt == "OPERATIONAL" and d.drive == "enabled" and self._master_silent(d):
+                    d.fault(cn.EMCY_HEARTBEAT)
                     self._send(0x80 + d.node.id, struct.pack("<HB5s", cn.EMCY_HEARTBEAT, 0x11, b""))
-                    log.warning("node %d: master heartbeat lost (%.0f ms): quick stop", d.node.id, silent_ms)
+                    log.warning("node %d: master heartbeat lost (%.0f ms): fault", d.node.id, silent_ms)
             self._sync_estop()
+
+    def _master_silent(self, d: _Drive) -> bool:
+        timeout = d.consumer & 0xFFFF
+        return bool(timeout) and (time.monotonic() - self._master_hb) * 1e3 > timeout
 
     def _sync_estop(self) -> None:
         stopped = any(d.drive in ("quick_stop", "fault") for d in self.drives.values())
         if stopped != self.sim.estopped:
             self.sim.estop(stopped)
         lost = "CAN: master heartbeat lost"
-        if any(
-            d.drive == "quick_stop" and (time.monotonic() - self._master_hb) * 1e3 > (d.consumer & 0xFFFF) > 0
-            for d in self.drives.values()
-        ):
+        if any(d.drive == "fault" and d.fault_code == cn.EMCY_HEARTBEAT for d in self.drives.values()):
             if lost not in self.sim.faults:
                 self.sim.faults.append(lost)
         elif lost in self.sim.faults:
@@ -180,7 +188,9 @@ class CanRobotServer:
         if d is None or fn not in (0x200, 0x300, 0x600):
             self.ignored += 1
             return
-        if fn == 0x600:
+        if fn == 0x600 and d.nmt == "STOPPED":
+            self._reject("not_operational", f"node {nid}: SDO 0x{cob:X} while STOPPED")
+        elif fn == 0x600:
             self._sdo(d, data)
         elif d.nmt != "OPERATIONAL":
             self._reject("not_operational", f"node {nid}: PDO 0x{cob:X} while {d.nmt}")
@@ -196,11 +206,14 @@ class CanRobotServer:
         state = NMT_CMD[data[0]]
         for d in self.drives.values():
             if data[1] in (0, d.node.id):
-                if state == "RESET":
-                    d.nmt, d.drive, d.pending, d.hb_ms, d.consumer = "PRE-OPERATIONAL", "switched_on", None, 0, 0
+                if state.startswith("RESET"):  # reset comm keeps the drive's state, reset node does not
+                    d.nmt, d.pending, d.hb_ms, d.consumer = "PRE-OPERATIONAL", None, 0, 0
+                    if state == "RESET":
+                        d.drive, d.fault_code = "switched_on", 0
                     self._send(0x700 + d.node.id, b"\x00")
                 else:
                     d.nmt = state
+        self._sync_estop()
         self.accepted["nmt"] += 1
 
     def _rpdo1(self, d: _Drive, data: bytes) -> None:
@@ -233,22 +246,26 @@ class CanRobotServer:
             self._reject("bad_length", f"node {d.node.id}: RPDO2 with {len(data)} bytes")
             return
         cw, mode, force = v
+        if mode not in (0, cn.MODE_POSITION, cn.MODE_GRASP) or (mode == cn.MODE_GRASP and not d.node.gripper):
+            self._reject("bad_mode", f"node {d.node.id}: mode {mode}")
+            return
         if cw == cn.CW_QUICK_STOP:
-            d.drive, d.pending = "quick_stop", None
-        elif cw == cn.CW_FAULT_RESET:
-            if d.drive in ("quick_stop", "fault"):
-                d.drive = "switched_on"
+            if d.drive != "fault":
+                d.drive, d.pending = "quick_stop", None
+        elif cw == cn.CW_FAULT_RESET:  # acts in Fault only, and only once its cause is gone
+            if d.drive == "fault" and not (d.fault_code == cn.EMCY_HEARTBEAT and self._master_silent(d)):
+                d.drive, d.fault_code = "switched_on", 0
                 self._send(0x80 + d.node.id, struct.pack("<HB5s", 0x0000, 0x00, b""))
+        elif cw == cn.CW_DISABLE_VOLTAGE:
+            if d.drive != "fault":
+                d.drive, d.pending = "switched_on", None
         elif cw == cn.CW_ENABLE:
             if d.drive in ("quick_stop", "fault"):
-                self._reject("fault_active", f"node {d.node.id}: enable while in {d.drive}; reset first")
+                self._reject("fault_active", f"node {d.node.id}: enable while in {d.drive}; leave it first")
                 return
             d.drive = "enabled"
         else:
             self._reject("bad_controlword", f"node {d.node.id}: controlword 0x{cw:04X}")
-            return
-        if mode not in (0, cn.MODE_POSITION, cn.MODE_GRASP) or (mode == cn.MODE_GRASP and not d.node.gripper):
-            self._reject("bad_mode", f"node {d.node.id}: mode {mode}")
             return
         if d.node.gripper and mode == cn.MODE_GRASP and d.drive == "enabled":
             reason = self.limits.check_grasp_force(force * 0.01)

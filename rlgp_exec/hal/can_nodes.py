@@ -13,13 +13,19 @@ from rlgp_exec.robot import RobotModel
 from robots import robot_dir
 
 __all__ = [
+    "CW_DISABLE_VOLTAGE",
     "CW_ENABLE",
     "CW_FAULT_RESET",
     "CW_QUICK_STOP",
     "EMCY_HEARTBEAT",
     "EMCY_LIMITS",
+    "HB_OPERATIONAL",
     "MODE_GRASP",
     "MODE_POSITION",
+    "NMT_COMMANDS",
+    "NMT_PRE_OPERATIONAL",
+    "NMT_START",
+    "NMT_STATES",
     "SW_ENABLED",
     "SW_FAULT",
     "SW_NOT_QUICK_STOP",
@@ -27,15 +33,32 @@ __all__ = [
     "CanMap",
     "CanNode",
     "load_can_map",
+    "operation_enabled",
     "pack",
+    "stopped",
     "unpack",
 ]
 
 # CiA 402 subset
-CW_ENABLE, CW_QUICK_STOP, CW_FAULT_RESET = 0x000F, 0x0002, 0x0080
+CW_ENABLE, CW_QUICK_STOP, CW_FAULT_RESET, CW_DISABLE_VOLTAGE = 0x000F, 0x0002, 0x0080, 0x0000
 SW_ENABLED, SW_FAULT, SW_NOT_QUICK_STOP, SW_TARGET_REACHED = 1 << 2, 1 << 3, 1 << 5, 1 << 10
+# CiA 301 NMT: heartbeat states (0x00 = boot-up) and the commands of the NMT frame (COB-ID 0x000)
+NMT_STATES = {0x00: "BOOT-UP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+NMT_COMMANDS = {0x01: "start", 0x02: "stop", 0x80: "enter pre-operational", 0x81: "reset node", 0x82: "reset comm"}
+HB_OPERATIONAL, NMT_START, NMT_PRE_OPERATIONAL = 0x05, 0x01, 0x80
 MODE_POSITION, MODE_GRASP = 1, 4
 EMCY_HEARTBEAT, EMCY_LIMITS = 0x8130, 0x8611
+
+
+def stopped(statusword: int) -> bool:
+    """Fault or quick stop active: the drive holds and follows no setpoint."""
+    return bool(statusword & SW_FAULT) or not statusword & SW_NOT_QUICK_STOP
+
+
+def operation_enabled(statusword: int) -> bool:
+    """CiA 402 "operation enabled": the drive follows setpoints (bit 2 set, no quick stop, no fault)."""
+    return bool(statusword & SW_ENABLED) and not stopped(statusword)
+
 
 # frame layouts: (function base, struct format)
 LAYOUT: dict[str, tuple[int, str]] = {
@@ -81,6 +104,10 @@ class BusConfig:
     master_heartbeat: float = 0.02  # [s]
     node_heartbeat_ms: int = 20
     consumer_timeout_ms: int = 100
+
+    def consumer_heartbeat(self, timeout_ms: int | None = None) -> int:
+        """The value of a node's 0x1016:01: it watches the master's heartbeat for ``timeout_ms``."""
+        return (self.master_node_id << 16) | (self.consumer_timeout_ms if timeout_ms is None else timeout_ms)
 
 
 @dataclass(frozen=True)
