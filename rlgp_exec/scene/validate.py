@@ -9,9 +9,10 @@ import numpy as np
 
 from rlgp_exec.errors import SceneError
 from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_box, support_surfaces
-from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject
+from rlgp_exec.scene.rules import HEIGHT_MAX, START_OVERLAP
+from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject, pose_matrix
 
-__all__ = ["SUPPORT_TOLERANCE", "find_support", "footprint_radius", "validate_geometry"]
+__all__ = ["SUPPORT_TOLERANCE", "check_robot_start", "find_support", "footprint_radius", "validate_geometry"]
 
 SUPPORT_TOLERANCE = 0.005  # [m] between an object's bottom and its support surface
 
@@ -99,3 +100,34 @@ def validate_geometry(scene: Scene, fail: Fail) -> None:
                     name = "xy"[axis]
                     raise fail(f"{where}.random.{name}", f"[{rng[0]}, {rng[1]}] puts the object off {sup!r} "
                                                          f"(its centre must stay within ±{half:.3f} m)")
+
+
+def check_robot_start(scene: Scene, fail: Fail) -> None:
+    """The robot's base footprint (robot.toml: a disc or a rectangle) clear of every fixture's footprint
+    at the start, as the planners keep it on every motion (START_OVERLAP)."""
+    from rlgp_exec.robot.config import load_robot_config
+
+    cfg = load_robot_config(scene.robot.name).base
+    x, y, yaw = scene.robot.base
+    for f in scene.fixtures:
+        R, c = f.T[:2, :2], f.T[:2, 3]
+        half = np.asarray(f.size[:2]) / 2
+        if cfg.footprint_radius is not None:
+            local = R.T @ (np.array([x, y]) - c)
+            gap = float(np.linalg.norm(np.maximum(np.abs(local) - half, 0.0))) - cfg.footprint_radius
+            inside = gap < -START_OVERLAP
+            shape = f"a disc of radius {cfg.footprint_radius} m"
+        elif cfg.footprint_half_extents is not None:
+            hx, hy = cfg.footprint_half_extents
+            # both boxes span the whole height: a footprint test in the plane
+            base = Box("base", (2 * hx, 2 * hy, 2 * HEIGHT_MAX), pose_matrix((x, y, 0.0, yaw)), (0, 0, 0, 1))
+            fx = Box(f.name, (*f.size[:2], 2 * HEIGHT_MAX), pose_matrix((*f.pose[:2], 0.0, f.pose[3])), (0, 0, 0, 1))
+            inside = boxes_overlap(base, fx, tolerance=START_OVERLAP)
+            shape = f"{2 * hx:g} x {2 * hy:g} m"
+        else:
+            return
+        if inside:
+            raise fail("[robot].base", f"the robot starts inside fixture {f.name!r}: its footprint ({shape}) at "
+                                       f"[{x:.3f}, {y:.3f}] overlaps the fixture's {f.size[0]:g} x {f.size[1]:g} m "
+                                       f"footprint at [{c[0]:.3f}, {c[1]:.3f}]; the base must start clear of "
+                                       f"every fixture")
