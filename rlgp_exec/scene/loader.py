@@ -18,7 +18,14 @@ Field reference (units: metres, radians; poses are [x, y, z of the centre, yaw] 
 ``[goal]``      ``literals``: "(on OBJ TARGET)" (TARGET a region, fixture or object),
                 "(in OBJ CABINET)", "(open CABINET)", "(closed CABINET)".
 
-Every error is a :class:`~rlgp_exec.errors.SceneError` naming the file, the table and the field.
+Bounds (``rlgp_exec.scene.rules``, each with its reason): extents in [SIZE_MIN, OBJECT_SIZE_MAX] or
+[SIZE_MIN, FIXTURE_SIZE_MAX]; fixture and object centres within WORKSPACE_RADIUS of the base, x and y
+within COORD_MAX, yaws within ANGLE_MAX, bottoms not below the floor and tops below HEIGHT_MAX; joint
+overrides within their URDF limits (+ JOINT_TOLERANCE); the base footprint clear of every fixture's;
+at least one goal literal; files of UTF-8, at most FILE_BYTES_MAX bytes and NESTING_MAX levels.
+
+Every error is a :class:`~rlgp_exec.errors.SceneError` naming the file, the table and the field, with
+the bad value quoted shortened (``rules.quote``) and the rule that refuses it.
 """
 
 from __future__ import annotations
@@ -322,7 +329,8 @@ def _check_nesting(r: _Reader, data: Any) -> None:
     while stack:
         value, path = stack.pop()
         if len(path) >= NESTING_MAX:
-            shown = ".".join(path[:4]) + (" ..." if len(path) > 4 else "")
+            shown = "".join(k if k.startswith("[") else f".{k}" for k in path[:4]).lstrip(".")
+            shown += " ..." if len(path) > 4 else ""
             raise r.fail(shown, f"nested deeper than {NESTING_MAX} levels of tables and arrays (NESTING_MAX; "
                                 f"the scene contract needs 5)")
         if isinstance(value, dict):
