@@ -26,6 +26,7 @@ from rlgp_exec.scene.rules import (
     FIXTURE_SIZE_MAX,
     HEIGHT_MAX,
     JOINT_TOLERANCE,
+    MESSAGE_MAX,
     OBJECT_SIZE_MAX,
     QUOTE_MAX,
     SIZE_MIN,
@@ -172,6 +173,12 @@ def test_robot_start_clear_of_every_fixture_footprint():
     assert "starts inside fixture" in refusal(pr2_at(-0.4 - 0.335, math.pi / 4))  # its corner reaches in
 
 
+def test_fixtures_may_touch_but_not_interpenetrate():
+    # table_clearing's upper step touches the cabinet's side (y = 0.1); moved 1 cm into it
+    msg = refusal(edited("table_clearing_hsr", lambda d: d["fixture"][2]["pose"].__setitem__(1, 0.24)))
+    assert "[[fixture]] 'step_upper'.pose: interpenetrates fixture 'cabinet'" in msg
+
+
 def test_a_scene_without_a_goal_is_refused():
     msg = refusal(edited("tower_pr2", lambda d: d.pop("goal")))
     assert msg.startswith("t.toml: [goal]: missing")
@@ -198,6 +205,13 @@ def test_huge_values_are_quoted_short():
         assert "[[fixture]] 'table_mid'.size" in msg and len(msg) < 200, msg[:600]
     msg = refusal(edited("sorting_pr2", lambda d: d["fixture"][0].update(size=[[[[[[1]]]]]] * 10_000)))
     assert msg.startswith("t.toml: fixture[0].size[9999] ...: nested deeper than 8 levels") and len(msg) < 200
+
+
+def test_a_message_stays_under_message_max_whatever_the_file_name_and_keys():
+    data = edited("sorting_pr2", lambda d: d["scene"].update({f"{'k' * 200}{i}": 1 for i in range(50)}))
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(data, "f" * 300 + ".toml")
+    assert len(str(info.value)) <= MESSAGE_MAX and "unknown key(s)" in str(info.value)
 
 
 values = st.recursive(st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=200)),

@@ -77,7 +77,8 @@ SHAPES = ("box", "cylinder")
 KINDS = ("static", "drawer_cabinet")
 TAG36H11_IDS = 587
 TOP_KEYS = {"scene", "robot", "fixture", "object", "region", "goal"}
-_WHERE_MAX = 120  # characters of a key path in a message
+_SOURCE_MAX = 60  # characters of the file name in a message
+_WHERE_MAX = 100  # characters of a key path in a message
 
 
 def _clip(text: str, limit: int) -> str:
@@ -86,10 +87,12 @@ def _clip(text: str, limit: int) -> str:
 
 class _Reader:
     def __init__(self, source: str) -> None:
-        self.source = _clip(source, 80)
+        self.source = _clip(source, _SOURCE_MAX)
 
     def fail(self, where: str, msg: str) -> SceneError:
-        return SceneError(self.source, _clip(where, _WHERE_MAX), _clip(msg, MESSAGE_MAX))
+        """The SceneError, at most MESSAGE_MAX characters in all (``f"{source}: {where}: {msg}"``)."""
+        where = _clip(where, _WHERE_MAX)
+        return SceneError(self.source, where, _clip(msg, MESSAGE_MAX - len(self.source) - len(where) - 4))
 
     def table(self, value: Any, where: str, allowed: set[str], required: set[str]) -> dict[str, Any]:
         if not isinstance(value, dict):

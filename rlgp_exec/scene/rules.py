@@ -62,8 +62,8 @@ FILE_BYTES_MAX = 1 << 20
 NESTING_MAX = 8
 #: characters of a bad value quoted in a message
 QUOTE_MAX = 60
-#: characters of a whole error message after the file name and the key path
-MESSAGE_MAX = 360
+#: characters of a whole error message, file and key path included: with a CLI's prefix still under 500
+MESSAGE_MAX = 460
 
 _ITEMS_QUOTED = 4
 _DEPTH_QUOTED = 2

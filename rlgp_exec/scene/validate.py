@@ -57,21 +57,33 @@ def find_support(scene: Scene, fail: Fail, openings: Mapping[str, float] | None 
     return replace(scene, objects=tuple(objs))
 
 
-def _static_boxes(scene: Scene) -> list[Box]:
+def _fixture_parts(scene: Scene) -> list[tuple[str, Box]]:
+    """(fixture name, box) of every fixture's boxes, closed drawers included."""
     from rlgp_exec.scene.geometry import cabinet_geometry
 
-    boxes: list[Box] = []
+    parts: list[tuple[str, Box]] = []
     for f in scene.fixtures:
-        boxes += fixture_boxes(f)
+        parts += [(f.name, b) for b in fixture_boxes(f)]
         if f.kind == "drawer_cabinet":
             g = cabinet_geometry(f)
-            boxes += [Box(b.name, b.size, g.T_world_drawer_closed @ b.T, b.color) for b in g.drawer]
-    return boxes
+            parts += [(f.name, Box(b.name, b.size, g.T_world_drawer_closed @ b.T, b.color)) for b in g.drawer]
+    return parts
+
+
+def _static_boxes(scene: Scene) -> list[Box]:
+    return [b for _, b in _fixture_parts(scene)]
 
 
 def validate_geometry(scene: Scene, fail: Fail) -> None:
-    """Objects on their supports (centre and footprint), no interpenetration, sane random ranges."""
-    statics = _static_boxes(scene)
+    """Fixtures apart, objects on their supports (centre and footprint), no interpenetration, sane random
+    ranges."""
+    parts = _fixture_parts(scene)
+    for i, (owner, part) in enumerate(parts):
+        for neighbour, c in parts[:i]:
+            if neighbour != owner and boxes_overlap(part, c):
+                raise fail(f"[[fixture]] '{owner}'.pose", f"interpenetrates fixture {neighbour!r} (part {c.name!r}); "
+                                                         f"fixtures may touch, not overlap")
+    statics = [b for _, b in parts]
     surfaces = {s.name: s for s in support_surfaces(scene)}
     obj_boxes = {o.name: object_box(o) for o in scene.objects}
     for o in scene.objects:
