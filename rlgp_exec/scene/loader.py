@@ -210,7 +210,7 @@ def _robot(r: _Reader, data: dict[str, Any], robot_name: str) -> RobotSpec:
             elif not lo - JOINT_TOLERANCE <= x <= hi + JOINT_TOLERANCE:
                 raise r.fail(where, f"{x:.6g} {unit} is outside the joint's range [{lo:.4g}, {hi:.4g}] {unit} "
                                     f"(its URDF limits, tolerance {JOINT_TOLERANCE:g})")
-            joints[k] = min(max(x, lo), hi)
+            joints[k] = min(max(x, lo), hi)  # past a limit by the tolerance only: held to it, as the planners
     return RobotSpec(robot_name, base, MappingProxyType(joints))  # type: ignore[arg-type]
 
 
@@ -415,7 +415,7 @@ def load_scene(path: str | Path) -> Scene:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise r.fail("(toml)", f"not valid TOML: {e}") from None
+        raise r.fail("(toml)", f"not valid TOML: {e}") from e
     except RecursionError:
         raise r.fail("(toml)", "not a scene: arrays or inline tables nested too deep for the TOML parser "
                                f"(a scene nests {NESTING_MAX} levels at most)") from None

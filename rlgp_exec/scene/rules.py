@@ -46,8 +46,8 @@ HEIGHT_MAX = 3.0
 ANGLE_MAX = 2.0 * math.pi
 #: [rad or m] a joint value may pass its URDF limit by this much: rounding in files written from joint states
 JOINT_TOLERANCE = 1e-3
-#: [m] the robot's footprint may overlap a fixture's by this much at the start: the planners keep the base
-#: off every fixture footprint, so a start inside one has no collision-free first motion
+#: [m] how far the robot may reach into a fixture at the start (its base footprint, or a link at the start
+#: configuration): the planners' collision tolerance, so a start deeper in has no collision-free first motion
 START_OVERLAP = 1e-3
 #: characters in a name: names appear in every plan, log and message
 NAME_MAX = 64

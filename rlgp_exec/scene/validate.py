@@ -143,3 +143,40 @@ def check_robot_start(scene: Scene, fail: Fail) -> None:
                                        f"[{x:.3f}, {y:.3f}] overlaps the fixture's {f.size[0]:g} x {f.size[1]:g} m "
                                        f"footprint at [{c[0]:.3f}, {c[1]:.3f}]; the base must start clear of "
                                        f"every fixture")
+    hit = _start_contact(scene)
+    if hit is not None:
+        link, owner, part, depth = hit
+        where = "[robot].joints" if scene.robot.joints else "[robot]"
+        raise fail(where, f"the robot's start configuration puts link {link!r} {depth * 1000:.0f} mm into fixture "
+                          f"{owner!r} (part {part!r}); the robot must start clear of every fixture "
+                          f"(START_OVERLAP {START_OVERLAP * 1000:g} mm)")
+
+
+def _start_contact(scene: Scene) -> tuple[str, str, str, float] | None:
+    """(robot link, fixture, fixture part, depth [m]) of the deepest penetration of the robot at its start
+    (the home pose with the file's joint overrides) into a fixture, in a PyBullet world of the fixtures'
+    boxes; None when it is clear."""
+    import pybullet as p
+
+    from rlgp_exec.robot import load_robot
+    from rlgp_exec.robot.pybullet_body import PyBulletRobot, quat_xyzw
+
+    model = load_robot(scene.robot.name)
+    client = p.connect(p.DIRECT)
+    try:
+        robot = PyBulletRobot(model, client, collision_only=True)
+        parts: dict[int, tuple[str, str]] = {}
+        for owner, box in _fixture_parts(scene):
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[float(v) / 2 for v in box.size],
+                                           physicsClientId=client)
+            body = p.createMultiBody(0.0, shape, -1, box.T[:3, 3].tolist(), quat_xyzw(box.T[:3, :3]),
+                                     physicsClientId=client)
+            parts[body] = (owner, box.name)
+        robot.set_q(model.home(scene.robot.base, scene.robot.joints))
+        hits = [c for c in robot.contacts(START_OVERLAP) if c.other_body in parts]
+    finally:
+        p.disconnect(client)
+    if not hits:
+        return None
+    worst = min(hits, key=lambda c: c.distance)
+    return (worst.link, *parts[worst.other_body], -worst.distance)
