@@ -27,43 +27,22 @@ __all__ = [
     "quote",
 ]
 
-#: [m] smallest extent of an object, fixture, region, tag or drawer: below it grasps and the collision
-#: checks' centimetre margins mean nothing
-SIZE_MIN = 0.005
-#: [m] largest extent of a movable object: neither robot's hand closes on or carries more
-OBJECT_SIZE_MAX = 1.0
-#: [m] largest extent of a fixture: one room; more is a unit slip (mm written as m)
-FIXTURE_SIZE_MAX = 10.0
-#: [m] every fixture and object centre lies this close to the robot's start (horizontally): base paths,
-#: reachability graphs and collision worlds are sized for one room or lab
-WORKSPACE_RADIUS = 30.0
-#: [m] bound on every x, y coordinate: the planar base joints' position limits in RobotModel
-COORD_MAX = 1000.0
-#: [m] highest top of a fixture or object: far above either robot's reach (PR2, torso up: ~1.6 m)
-HEIGHT_MAX = 3.0
-#: [rad] bound on every yaw and continuous joint: more than a turn either way is a typo, and wrapping a
-#: huge angle loses its precision
-ANGLE_MAX = 2.0 * math.pi
-#: [rad or m] a joint value may pass its URDF limit by this much: rounding in files written from joint states
-JOINT_TOLERANCE = 1e-3
-#: [m] how far the robot may reach into a fixture at the start (its base footprint, or a link at the start
-#: configuration): the planners' collision tolerance, so a start deeper in has no collision-free first motion
-START_OVERLAP = 1e-3
-#: characters in a name: names appear in every plan, log and message
-NAME_MAX = 64
-#: fixtures, objects or regions in one scene: the task search is exponential in them, and the geometric
-#: checks quadratic
-ITEMS_MAX = 64
-#: literals in the goal: each is one subgoal of the task search
-LITERALS_MAX = 64
-#: bytes in a scene file (shipped ones are ~3 kB): what cannot be a scene is not parsed
-FILE_BYTES_MAX = 1 << 20
-#: levels of tables and arrays (the deepest the contract has is 5: top, [[object]], item, random, x)
-NESTING_MAX = 8
-#: characters of a bad value quoted in a message
-QUOTE_MAX = 60
-#: characters of a whole error message, file and key path included: with a CLI's prefix still under 500
-MESSAGE_MAX = 460
+SIZE_MIN = 0.005  # [m] least extent of an object, fixture, region, tag, drawer: below the checks' margins
+OBJECT_SIZE_MAX = 1.0  # [m] most extent of a movable object: neither robot's hand closes on or carries more
+FIXTURE_SIZE_MAX = 10.0  # [m] most extent of a fixture: one room; more is a unit slip (mm written as m)
+WORKSPACE_RADIUS = 30.0  # [m] fixtures and objects from the robot's base: graphs and worlds span one room
+COORD_MAX = 1000.0  # [m] bound on every x, y: the planar base joints' position limits in RobotModel
+HEIGHT_MAX = 3.0  # [m] highest top of a fixture or object: far above either robot's reach (PR2: ~1.6 m)
+ANGLE_MAX = 2.0 * math.pi  # [rad] bound on yaws and continuous joints: past a turn is a typo (or unit slip)
+JOINT_TOLERANCE = 1e-3  # [rad or m] past a URDF limit: rounding in files written from joint states
+START_OVERLAP = 1e-3  # [m] the robot's depth into a fixture at the start: the planners' collision tolerance
+NAME_MAX = 64  # characters in a name: names appear in every plan, log and message
+ITEMS_MAX = 64  # fixtures, objects or regions: the task search is exponential in them
+LITERALS_MAX = 64  # goal literals: each is a subgoal of the task search
+FILE_BYTES_MAX = 1 << 20  # bytes in a scene file (shipped ones: ~3 kB): what cannot be a scene is not parsed
+NESTING_MAX = 8  # levels of tables and arrays: the contract's deepest is 5 (top, [[object]], item, random, x)
+QUOTE_MAX = 60  # characters of a bad value quoted in a message
+MESSAGE_MAX = 460  # characters of a whole error message: with a CLI's prefix still under 500
 
 _ITEMS_QUOTED = 4
 _DEPTH_QUOTED = 2
