@@ -29,11 +29,12 @@ def _write_json(path: str | None, data: dict[str, Any]) -> None:
 # ---------------------------------------------------------------------------------- show
 def cmd_show(args: argparse.Namespace) -> int:
     from rlgp_exec.scene import load_scene, randomize
-    from sim.render import render_scene_png
 
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene)  # before the renderer loads: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
+    from sim.render import render_scene_png
+
     out = render_scene_png(scene, args.png, width=args.width, height=args.height, view=args.view)
     print(f"{scene.name}: wrote {out}")
     return 0
@@ -111,12 +112,13 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- plan
 def cmd_plan(args: argparse.Namespace) -> int:
-    from rlgp_exec.planning.registry import plan as run_planner
     from rlgp_exec.scene import load_scene, randomize
 
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene)  # before the planners load: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
+    from rlgp_exec.planning.registry import plan as run_planner
+
     plan = run_planner(scene, args.planner, seed=args.seed or 0)
     summary = plan.summary()
     print(

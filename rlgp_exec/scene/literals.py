@@ -6,6 +6,7 @@ import re
 from collections.abc import Callable, Sequence
 
 from rlgp_exec.errors import SceneError
+from rlgp_exec.scene.rules import quote
 from rlgp_exec.scene.types import Literal, Scene
 
 __all__ = ["PREDICATES", "parse_goal", "parse_literal"]
@@ -26,10 +27,10 @@ def parse_literal(text: str) -> Literal:
     """``"(on a b)"`` -> Literal("on", ("a", "b")); raises ValueError on bad syntax or predicate."""
     m = _LITERAL.match(text.strip())
     if not m:
-        raise ValueError(f"{text!r} is not a literal like '(on block tray)'")
+        raise ValueError(f"{quote(text)} is not a literal like '(on block tray)'")
     pred, args = m.group(1), tuple(m.group(2).split())
     if pred not in PREDICATES:
-        raise ValueError(f"unknown predicate {pred!r}; valid: {sorted(PREDICATES)}")
+        raise ValueError(f"unknown predicate {quote(pred)}; valid: {sorted(PREDICATES)}")
     if len(args) != len(PREDICATES[pred]):
         raise ValueError(f"({pred} ...) takes {len(PREDICATES[pred])} argument(s), got {len(args)}")
     return Literal(pred, args)
@@ -57,10 +58,10 @@ def parse_goal(literals: Sequence[str], scene: Scene, fail: Fail) -> tuple[Liter
         for arg, allowed in zip(lit.args, PREDICATES[lit.predicate], strict=True):
             kind = kinds.get(arg)
             if kind is None:
-                raise fail(where, f"{text!r} names unknown {'/'.join(allowed)} {arg!r}")
+                raise fail(where, f"{quote(text)} names unknown {'/'.join(allowed)} {quote(arg)}")
             if kind not in allowed:
-                raise fail(where, f"{text!r}: {arg!r} is a {kind}, expected a {' or '.join(allowed)}")
+                raise fail(where, f"{quote(text)}: {arg!r} is a {kind}, expected a {' or '.join(allowed)}")
         if lit.predicate == "on" and lit.args[0] == lit.args[1]:
-            raise fail(where, f"{text!r}: an object cannot be on itself")
+            raise fail(where, f"{quote(text)}: an object cannot be on itself")
         out.append(lit)
     return tuple(out)

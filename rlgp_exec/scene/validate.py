@@ -9,9 +9,10 @@ import numpy as np
 
 from rlgp_exec.errors import SceneError
 from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_box, support_surfaces
-from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject
+from rlgp_exec.scene.rules import HEIGHT_MAX, START_OVERLAP
+from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject, pose_matrix
 
-__all__ = ["SUPPORT_TOLERANCE", "find_support", "footprint_radius", "validate_geometry"]
+__all__ = ["SUPPORT_TOLERANCE", "check_robot_start", "find_support", "footprint_radius", "validate_geometry"]
 
 SUPPORT_TOLERANCE = 0.005  # [m] between an object's bottom and its support surface
 
@@ -56,21 +57,33 @@ def find_support(scene: Scene, fail: Fail, openings: Mapping[str, float] | None 
     return replace(scene, objects=tuple(objs))
 
 
-def _static_boxes(scene: Scene) -> list[Box]:
+def _fixture_parts(scene: Scene) -> list[tuple[str, Box]]:
+    """(fixture name, box) of every fixture's boxes, closed drawers included."""
     from rlgp_exec.scene.geometry import cabinet_geometry
 
-    boxes: list[Box] = []
+    parts: list[tuple[str, Box]] = []
     for f in scene.fixtures:
-        boxes += fixture_boxes(f)
+        parts += [(f.name, b) for b in fixture_boxes(f)]
         if f.kind == "drawer_cabinet":
             g = cabinet_geometry(f)
-            boxes += [Box(b.name, b.size, g.T_world_drawer_closed @ b.T, b.color) for b in g.drawer]
-    return boxes
+            parts += [(f.name, Box(b.name, b.size, g.T_world_drawer_closed @ b.T, b.color)) for b in g.drawer]
+    return parts
+
+
+def _static_boxes(scene: Scene) -> list[Box]:
+    return [b for _, b in _fixture_parts(scene)]
 
 
 def validate_geometry(scene: Scene, fail: Fail) -> None:
-    """Objects on their supports (centre and footprint), no interpenetration, sane random ranges."""
-    statics = _static_boxes(scene)
+    """Fixtures apart, objects on their supports (centre and footprint), no interpenetration, sane random
+    ranges."""
+    parts = _fixture_parts(scene)
+    for i, (owner, part) in enumerate(parts):
+        for neighbour, c in parts[:i]:
+            if neighbour != owner and boxes_overlap(part, c):
+                raise fail(f"[[fixture]] '{owner}'.pose", f"interpenetrates fixture {neighbour!r} (part {c.name!r}); "
+                                                         f"fixtures may touch, not overlap")
+    statics = [b for _, b in parts]
     surfaces = {s.name: s for s in support_surfaces(scene)}
     obj_boxes = {o.name: object_box(o) for o in scene.objects}
     for o in scene.objects:
@@ -99,3 +112,71 @@ def validate_geometry(scene: Scene, fail: Fail) -> None:
                     name = "xy"[axis]
                     raise fail(f"{where}.random.{name}", f"[{rng[0]}, {rng[1]}] puts the object off {sup!r} "
                                                          f"(its centre must stay within ±{half:.3f} m)")
+
+
+def check_robot_start(scene: Scene, fail: Fail) -> None:
+    """The robot's base footprint (robot.toml: a disc or a rectangle) clear of every fixture's footprint
+    at the start, as the planners keep it on every motion (START_OVERLAP)."""
+    from rlgp_exec.robot.config import load_robot_config
+
+    cfg = load_robot_config(scene.robot.name).base
+    x, y, yaw = scene.robot.base
+    for f in scene.fixtures:
+        R, c = f.T[:2, :2], f.T[:2, 3]
+        half = np.asarray(f.size[:2]) / 2
+        if cfg.footprint_radius is not None:
+            local = R.T @ (np.array([x, y]) - c)
+            gap = float(np.linalg.norm(np.maximum(np.abs(local) - half, 0.0))) - cfg.footprint_radius
+            inside = gap < -START_OVERLAP
+            shape = f"a disc of radius {cfg.footprint_radius} m"
+        elif cfg.footprint_half_extents is not None:
+            hx, hy = cfg.footprint_half_extents
+            # both boxes span the whole height: a footprint test in the plane
+            base = Box("base", (2 * hx, 2 * hy, 2 * HEIGHT_MAX), pose_matrix((x, y, 0.0, yaw)), (0, 0, 0, 1))
+            fx = Box(f.name, (*f.size[:2], 2 * HEIGHT_MAX), pose_matrix((*f.pose[:2], 0.0, f.pose[3])), (0, 0, 0, 1))
+            inside = boxes_overlap(base, fx, tolerance=START_OVERLAP)
+            shape = f"{2 * hx:g} x {2 * hy:g} m"
+        else:
+            return
+        if inside:
+            raise fail("[robot].base", f"the robot starts inside fixture {f.name!r}: its footprint ({shape}) at "
+                                       f"[{x:.3f}, {y:.3f}] overlaps the fixture's {f.size[0]:g} x {f.size[1]:g} m "
+                                       f"footprint at [{c[0]:.3f}, {c[1]:.3f}]; the base must start clear of "
+                                       f"every fixture")
+    hit = _start_contact(scene)
+    if hit is not None:
+        link, owner, part, depth = hit
+        where = "[robot].joints" if scene.robot.joints else "[robot]"
+        raise fail(where, f"the robot's start configuration puts link {link!r} {depth * 1000:.0f} mm into fixture "
+                          f"{owner!r} (part {part!r}); the robot must start clear of every fixture "
+                          f"(START_OVERLAP {START_OVERLAP * 1000:g} mm)")
+
+
+def _start_contact(scene: Scene) -> tuple[str, str, str, float] | None:
+    """(robot link, fixture, fixture part, depth [m]) of the deepest penetration of the robot at its start
+    (the home pose with the file's joint overrides) into a fixture, in a PyBullet world of the fixtures'
+    boxes; None when it is clear."""
+    import pybullet as p
+
+    from rlgp_exec.robot import load_robot
+    from rlgp_exec.robot.pybullet_body import PyBulletRobot, quat_xyzw
+
+    model = load_robot(scene.robot.name)
+    client = p.connect(p.DIRECT)
+    try:
+        robot = PyBulletRobot(model, client, collision_only=True)
+        parts: dict[int, tuple[str, str]] = {}
+        for owner, box in _fixture_parts(scene):
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=[float(v) / 2 for v in box.size],
+                                           physicsClientId=client)
+            body = p.createMultiBody(0.0, shape, -1, box.T[:3, 3].tolist(), quat_xyzw(box.T[:3, :3]),
+                                     physicsClientId=client)
+            parts[body] = (owner, box.name)
+        robot.set_q(model.home(scene.robot.base, scene.robot.joints))
+        hits = [c for c in robot.contacts(START_OVERLAP) if c.other_body in parts]
+    finally:
+        p.disconnect(client)
+    if not hits:
+        return None
+    worst = min(hits, key=lambda c: c.distance)
+    return (worst.link, *parts[worst.other_body], -worst.distance)
