@@ -345,6 +345,8 @@ class ZenohRobotServer:
             return
         with self.lock:
             self.sim.estop(bool(m.data))
+            if m.data:
+                self._commanded = False  # e-stopped it holds by itself: no deadline until commanded again
         self._ok(topic)
         log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
 

@@ -276,6 +276,32 @@ def test_a_silent_executive_is_held_within_the_deadline(robot):
     assert LOST in server.sim.faults  # a (possibly spoofed) token does not clear it
 
 
+def test_an_estop_mid_motion_and_its_rearm_leave_no_silence_fault(robot):
+    """E-stopped mid-motion the HAL sends nothing but keepalives; neither then nor after the rearm does
+    the robot report the executive silent (which would fault the next task at its first phase)."""
+    from rlgp_exec.hal import make_backend
+
+    server, _ = robot
+    hal = make_backend("zenoh", endpoint=server.endpoint)
+    hal.configure()
+    try:
+        assert hal.wait_for_robot(10.0)
+        hal.activate()
+        for _ in range(30):
+            assert hal.write_base_velocity(0.15, 0.0, 0.0)
+            time.sleep(0.01)
+        hal.estop()
+        assert _wait(lambda: server.sim.estopped, 1.0)
+        time.sleep(3 * COMMAND_DEADLINE_S)
+        assert SILENT not in server.sim.faults
+        hal.rearm()
+        assert _wait(lambda: not server.sim.estopped, 1.0)
+        time.sleep(3 * COMMAND_DEADLINE_S)
+        assert SILENT not in server.sim.faults and server.stats()["holds"] == {}, server.stats()
+    finally:
+        hal.shutdown()
+
+
 def test_the_zenoh_hal_keeps_an_idle_robot_quiet_and_a_frozen_one_is_held():
     """The HAL in its own process: idle, its keepalive keeps the robot server from faulting; frozen
     (SIGSTOP) mid-motion, the server holds within 0.5 s + a cycle."""

@@ -279,3 +279,4 @@ class ZenohBackend(RobotInterface):
 
     def _send_estop(self, engaged: bool) -> None:
         self._put("estop", rc.encode_bool(engaged))
+        self._moving = dict.fromkeys(self._moving, False)  # e-stopped the robot holds; released nothing moves yet
