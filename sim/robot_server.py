@@ -242,7 +242,7 @@ class ZenohRobotServer:
 
     def _hold_for(self, fault: str, kind: str) -> None:
         """Hold (lock held): the arm at its measured position, the base stopped; report ``fault`` once.
-        The deadline stops until the executive is heard again."""
+        The deadline stops until the next motion command."""
         st = self.sim.state()
         self.sim.set_joint_targets(JointSetpoint(self.limits.setpoint_names, st.positions(self.limits.setpoint_names)))
         self.sim.set_base_velocity(0.0, 0.0, 0.0)
