@@ -49,6 +49,8 @@ from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
 from rlgp_exec.hal.validate import CommandLimits, RejectCounter
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
+from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
+from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
 
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
@@ -57,8 +59,6 @@ log = logging.getLogger("sim.robot_server")
 PUSH_KEY = "rlgp/sim/push"  # sim only: JSON {"object", "dx", "dy"} moves an object (a test's "someone bumped it")
 MOCAP_EVERY = 5  # ticks between object-pose messages (20 Hz at 100 Hz)
 COMMAND_DEADLINE_S = 0.5  # [s] commanded, and no command or keepalive for this long: hold
-SILENT = "executive silent: no command or keepalive within 0.5 s: holding position"
-LOST = "executive lost: holding position"
 
 
 def _ns(namespace: str, key: str) -> str:
@@ -135,6 +135,7 @@ class ZenohRobotServer:
         self._token: Any = None
         self._executive_seen = False
         self._ticks = 0
+        self._faults_sent: tuple[str, ...] = ()
         self._commanded = False  # a motion command was accepted: the deadline runs
         self._last_heard = -float("inf")  # [s, monotonic] the last command or keepalive
         self.holds: Counter[str] = Counter()  # holds for a silent / lost executive
@@ -203,8 +204,9 @@ class ZenohRobotServer:
         self._pubs["joint_states"].put(rc.encode_joint_state(st.stamp, st.names, st.q, st.dq))
         self._pubs["odom"].put(rc.encode_odometry(st.stamp, *st.base, *st.base_velocity))
         self._pubs["runstop"].put(rc.encode_bool(st.estopped))
-        if self._ticks % 10 == 0:
+        if self._ticks % 10 == 0 or st.faults != self._faults_sent:  # a change goes out at once
             self._pubs["faults"].put(rc.encode_string("\n".join(st.faults)))
+            self._faults_sent = st.faults
         if "mocap" in self._pubs and self._ticks % MOCAP_EVERY == 0:
             with self.lock:
                 poses = {n: self.sim.object_pose(n) for n in self.sim.objects}
@@ -240,7 +242,7 @@ class ZenohRobotServer:
 
     def _hold_for(self, fault: str, kind: str) -> None:
         """Hold (lock held): the arm at its measured position, the base stopped; report ``fault`` once.
-        The deadline stops until the executive is heard again."""
+        The deadline stops until the next motion command."""
         st = self.sim.state()
         self.sim.set_joint_targets(JointSetpoint(self.limits.setpoint_names, st.positions(self.limits.setpoint_names)))
         self.sim.set_base_velocity(0.0, 0.0, 0.0)
@@ -345,6 +347,8 @@ class ZenohRobotServer:
             return
         with self.lock:
             self.sim.estop(bool(m.data))
+            if m.data:
+                self._commanded = False  # e-stopped it holds by itself: no deadline until commanded again
         self._ok(topic)
         log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
 

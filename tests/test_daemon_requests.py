@@ -277,6 +277,62 @@ def test_a_silent_executive_is_held_within_the_deadline(robot):
     assert LOST in server.sim.faults  # a (possibly spoofed) token does not clear it
 
 
+def test_an_estop_mid_motion_and_its_rearm_leave_no_silence_fault(robot):
+    """E-stopped mid-motion the HAL sends nothing but keepalives; neither then nor after the rearm does
+    the robot report the executive silent (which would fault the next task at its first phase)."""
+    from rlgp_exec.hal import make_backend
+
+    server, _ = robot
+    hal = make_backend("zenoh", endpoint=server.endpoint)
+    hal.configure()
+    try:
+        assert hal.wait_for_robot(10.0)
+        hal.activate()
+        for _ in range(30):
+            assert hal.write_base_velocity(0.15, 0.0, 0.0)
+            time.sleep(0.01)
+        hal.estop()
+        assert _wait(lambda: server.sim.estopped, 1.0)
+        time.sleep(3 * COMMAND_DEADLINE_S)
+        assert SILENT not in server.sim.faults
+        hal.rearm()
+        assert _wait(lambda: not server.sim.estopped, 1.0)
+        time.sleep(3 * COMMAND_DEADLINE_S)
+        assert SILENT not in server.sim.faults and server.stats()["holds"] == {}, server.stats()
+    finally:
+        hal.shutdown()
+
+
+def test_after_a_stream_stopped_without_its_hold_activate_starts_clean(robot):
+    """A stale-state fault mid-motion: the robot's state stops (its loop paused), the HAL's hold cannot
+    send the arm's setpoint, so its last command stays a moving one and the robot, once back, holds and
+    reports the executive silent. The next activate (after the operator's reset) sends a keepalive and
+    returns with that fault cleared, so the next task does not fault on it at its first phase."""
+    from rlgp_exec.hal import make_backend
+    from sim.robot_server import RealTimeLoop
+
+    server, _ = robot
+    hal = make_backend("zenoh", endpoint=server.endpoint, heartbeat_timeout=0.2)
+    hal.configure()
+    try:
+        assert hal.wait_for_robot(10.0)
+        hal.activate()
+        lift = hal.read_state().position("arm_lift_joint")
+        for k in range(30):
+            assert hal.write_setpoint([lift + 0.001 * k], [0.1], names=["arm_lift_joint"])
+            time.sleep(0.01)
+        server.loop.stop()  # the robot's state stops: stale
+        assert _wait(lambda: not hal.heartbeat_ok(), 2.0)
+        hal.deactivate()  # what the executive's fault does: the base stopped, the arm's hold not sendable
+        server.loop = RealTimeLoop(server.period, server.tick, "zenoh-robot")
+        server.loop.start()
+        assert _wait(lambda: SILENT in (hal.read_state().faults or ()), 3.0), "the robot did not hold"
+        hal.activate()
+        assert SILENT not in hal.read_state().faults
+    finally:
+        hal.shutdown()
+
+
 def test_the_zenoh_hal_keeps_an_idle_robot_quiet_and_a_frozen_one_is_held():
     """The HAL in its own process: idle, its keepalive keeps the robot server from faulting; frozen
     (SIGSTOP) mid-motion, the server holds within 0.5 s + a cycle."""

@@ -291,7 +291,10 @@ class Daemon:
             return refused
         if self.executive.sm.state is not ExecState.FAULT:
             return _err(f"reset: the executive is {self.executive.sm.state.name}, not FAULT")
-        self.executive.reset()
+        try:
+            self.executive.reset()
+        except RlgpError as e:  # the executive may refuse (the robot not healthy yet): say why
+            return _err(f"reset: {e}")
         return {"ok": True}
 
     def status(self) -> dict[str, Any]:

@@ -27,7 +27,15 @@ import numpy as np
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, RobotState
-from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
+from rlgp_exec.hal.zenoh_keys import (
+    DEFAULT_ENDPOINT,
+    EXECUTIVE_LOST,
+    EXECUTIVE_SILENT,
+    exact,
+    load_key_map,
+    open_session,
+    session_config,
+)
 from rlgp_exec.robot import load_robot
 
 __all__ = ["ZenohBackend"]
@@ -35,6 +43,7 @@ __all__ = ["ZenohBackend"]
 log = logging.getLogger(__name__)
 
 KEEPALIVE_S = 0.1  # [s] keepalive period at rest: 5 per robot-side deadline (0.5 s)
+ACTIVATE_WAIT_S = 0.5  # [s] at most, for the robot to clear its faults about this executive on activate
 REST_BASE = 0.05  # [m/s, rad/s] a twist below this is a hold (the executive's odometry correction at rest)
 REST_JOINT = 1e-6  # [rad/s, m/s] feed-forward velocity below which a setpoint is a hold
 
@@ -119,16 +128,29 @@ class ZenohBackend(RobotInterface):
         return cb
 
     def _keepalive_loop(self) -> None:
-        n = 0
         while not self._keepalive_stop.wait(KEEPALIVE_S):
-            if any(self._moving.values()):  # the command stream is the heartbeat; its silence must show
-                continue
-            n += 1
-            try:
-                self._pubs["heartbeat"].put(rc.encode_float64(float(n)))
-                self.keepalives += 1
-            except Exception as e:  # the session is closing
-                log.debug("zenoh: keepalive: %s", e)
+            if not any(self._moving.values()):  # else the command stream is the heartbeat; its silence must show
+                self._send_keepalive()
+
+    def _send_keepalive(self) -> None:
+        try:
+            self._pubs["heartbeat"].put(rc.encode_float64(float(self.keepalives + 1)))
+            self.keepalives += 1
+        except Exception as e:  # the session is closing
+            log.debug("zenoh: keepalive: %s", e)
+
+    def _on_activate(self) -> None:
+        """Nothing moves yet: keepalives again (a fault may have stopped a stream without its hold), and the
+        robot's faults about this executive cleared before the first command."""
+        self._moving = dict.fromkeys(self._moving, False)
+        self._send_keepalive()
+        end = time.monotonic() + ACTIVATE_WAIT_S
+        while time.monotonic() < end:
+            with self._lock:
+                if not {EXECUTIVE_SILENT, EXECUTIVE_LOST} & set(self._faults):
+                    return
+            time.sleep(0.005)
+        log.warning("zenoh: the robot still reports %s after %.1f s", self._faults, ACTIVATE_WAIT_S)
 
     def _on_shutdown(self) -> None:
         self._keepalive_stop.set()
@@ -279,3 +301,4 @@ class ZenohBackend(RobotInterface):
 
     def _send_estop(self, engaged: bool) -> None:
         self._put("estop", rc.encode_bool(engaged))
+        self._moving = dict.fromkeys(self._moving, False)  # e-stopped the robot holds; released nothing moves yet

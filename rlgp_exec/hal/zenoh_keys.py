@@ -23,7 +23,17 @@ from typing import Any
 from rlgp_exec.hal.types import HalError
 from robots import robot_dir
 
-__all__ = ["DEFAULT_ENDPOINT", "KeyMap", "Topic", "exact", "load_key_map", "open_session", "session_config"]
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "EXECUTIVE_LOST",
+    "EXECUTIVE_SILENT",
+    "KeyMap",
+    "Topic",
+    "exact",
+    "load_key_map",
+    "open_session",
+    "session_config",
+]
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream")  # what an endpoint may start with
@@ -31,6 +41,10 @@ _IP_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws")
 # what a listening / connecting TLS session needs under transport/link/tls
 _TLS_LISTEN = ("listen_certificate", "listen_private_key")
 _TLS_CONNECT = ("root_ca_certificate",)
+# the faults the robot side reports about the executive (on the faults key); its next command or keepalive
+# clears them
+EXECUTIVE_SILENT = "executive silent: no command or keepalive within 0.5 s: holding position"
+EXECUTIVE_LOST = "executive lost: holding position"
 _REQUIRED = ("joint_states", "odom", "runstop", "faults", "arm", "head", "gripper", "grasp", "cmd_vel", "estop")
 
 
