@@ -637,3 +637,35 @@ def test_mocap_transforms_round_trip_and_bad_payloads_are_named():
     bad["block"][0, 3] = np.nan
     with pytest.raises(RlgpError, match="bad transform for 'block'"):
         rc.parse_transforms(rc.encode_transforms(0.0, bad))
+
+
+def test_mocap_takes_poses_only_from_its_exact_key():
+    """A put on a wildcard that intersects the mocap key (``rlgp/**``) is nobody's motion capture."""
+    import zenoh
+
+    from rlgp_exec.executive.world import ZenohMocap
+    from rlgp_exec.hal import ros_codec as rc
+    from rlgp_exec.hal.zenoh_keys import session_config
+
+    ep = free_endpoint()
+    a, b = zenoh.open(session_config(listen=ep)), None
+    try:
+        b = zenoh.open(session_config(connect=ep))
+        mocap = ZenohMocap(a, "lab1")
+        T = np.eye(4)
+        T[:3, 3] = (1.0, 2.0, 0.5)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and mocap.rejected == 0:  # until the sessions have met
+            b.put("lab1/rlgp/**", rc.encode_transforms(0.0, {"block": T}))
+            time.sleep(0.05)
+        assert mocap.rejected > 0 and mocap.poses() == {}
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and not mocap.poses():
+            b.put(mocap.key, rc.encode_transforms(0.0, {"block": T}))
+            time.sleep(0.05)
+        assert np.allclose(mocap.poses()["block"], T)
+        mocap.close()
+    finally:
+        if b is not None:
+            b.close()
+        a.close()

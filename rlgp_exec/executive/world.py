@@ -26,6 +26,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.hal.ros_codec import parse_transforms
 from rlgp_exec.hal.types import RobotState
+from rlgp_exec.hal.zenoh_keys import exact
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene, StartState
 from rlgp_exec.scene.geometry import support_surfaces
@@ -103,6 +104,10 @@ class ZenohMocap(ObjectSource):
         self._sub = session.declare_subscriber(self.key, self._on_sample)
 
     def _on_sample(self, sample: Any) -> None:
+        if not exact(sample, self.key):  # a put on a wildcard (rlgp/**) is nobody's motion capture
+            self.rejected += 1
+            log.warning("mocap: ignored a sample on %s (not exactly %s)", sample.key_expr, self.key)
+            return
         try:
             poses = parse_transforms(sample.payload.to_bytes())
         except RlgpError as e:
