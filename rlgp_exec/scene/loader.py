@@ -78,7 +78,7 @@ SHAPES = ("box", "cylinder")
 KINDS = ("static", "drawer_cabinet")
 TAG36H11_IDS = 587
 TOP_KEYS = {"scene", "robot", "fixture", "object", "region", "goal"}
-_SOURCE_MAX = 60  # characters of the file name in a message
+_SOURCE_MAX = 120  # characters of the file name in a message (its end kept: the name, not the folders)
 _WHERE_MAX = 100  # characters of a key path in a message
 
 
@@ -88,7 +88,7 @@ def _clip(text: str, limit: int) -> str:
 
 class _Reader:
     def __init__(self, source: str) -> None:
-        self.source = _clip(source, _SOURCE_MAX)
+        self.source = source if len(source) <= _SOURCE_MAX else "..." + source[3 - _SOURCE_MAX :]
 
     def fail(self, where: str, msg: str) -> SceneError:
         """The SceneError, at most MESSAGE_MAX characters in all (``f"{source}: {where}: {msg}"``)."""
