@@ -101,7 +101,23 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     for flag, value in (("--scene", args.scene), ("--endpoint", args.endpoint), ("--namespace", args.namespace)):
         if value:
             argv += [flag, value]
-    return server_main(argv)
+    if not args.camera:
+        return server_main(argv)
+    import subprocess
+
+    from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT
+    from sim.robot_process import camera_command
+
+    if args.transport != "zenoh" or not args.scene:
+        raise RlgpError("sim-robot --camera publishes over zenoh and renders a scene: give --transport zenoh --scene")
+    # the camera node waits for the server's endpoint, so it can start first
+    cam = subprocess.Popen(camera_command(args.robot, args.scene, args.endpoint or DEFAULT_ENDPOINT,
+                                          args.namespace or "", args.camera_jpeg))
+    try:
+        return server_main(argv)
+    finally:
+        cam.terminate()
+        cam.wait(10)
 
 
 # ---------------------------------------------------------------------------------- plan
@@ -474,6 +490,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene")
     s.add_argument("--endpoint", help="zenoh: the endpoint to listen on, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
+    s.add_argument("--camera", action="store_true", help="zenoh: also publish the head camera (sim.camera_node)")
+    s.add_argument("--camera-jpeg", action="store_true", help="with --camera: also sensor_msgs/CompressedImage")
     s.set_defaults(func=cmd_sim_robot)
 
     s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")

@@ -66,8 +66,9 @@ def _ser(msg: Any, typename: str) -> bytes:
 
 
 def _stamp(t: float) -> Any:
-    sec = math.floor(t)
-    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=round((t - sec) * 1e9) % 1_000_000_000)
+    # rounded as a whole: t = 5.9999999997 is 6 s 0 ns (the fraction alone rounds to 1e9 ns: 5 s 0 ns)
+    sec, ns = divmod(round(t * 1e9), 1_000_000_000)
+    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=int(ns))
 
 
 def _header(t: float, frame: str = "") -> Any:
