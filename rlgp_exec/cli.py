@@ -58,6 +58,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result = run_reachability_bench(
             args.scene_file, samples=args.samples, seed=args.seed or 0, workers=args.workers
         )
+    elif task == "camera":
+        from rlgp_exec.executive.camera_bench import SCENE, run_camera_bench
+
+        result = run_camera_bench(Path(args.scene_file) if args.scene_file else SCENE, seed=args.seed or 0)
     elif task == "hal":
         from rlgp_exec.hal.bench import run_hal_bench
 
@@ -77,7 +81,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     else:
         print(
-            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, executive, "
+            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, camera, hal, executive, "
             "reachability SCENE, "
             "or a scene file (planners side by side: --planners rlgp,lgp --seeds N)",
             file=sys.stderr,
@@ -175,6 +179,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         endpoint=args.endpoint,
         namespace=args.namespace,
         seed=args.seed,
+        objects=args.objects,
     )
     result, _ = run_task(scene, opts, args.goal)
     print(f"{scene.name}: {result.status.value}: {result.detail}")
@@ -220,7 +225,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
         raise RlgpError(f"--scene {args.scene} is for robot {scene.robot.name!r}, not --robot {args.robot!r}")
     daemon = Daemon(
         scene,
-        RunOptions(backend=args.backend, planner=args.planner, endpoint=args.endpoint, namespace=args.namespace),
+        RunOptions(backend=args.backend, planner=args.planner, endpoint=args.endpoint, namespace=args.namespace,
+                   objects=args.objects),
         DaemonOptions(args.listen, args.namespace, Path(args.record_dir) if args.record_dir else None),
     )
     done = threading.Event()
@@ -447,12 +453,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--endpoint", help="zenoh: the robot's endpoint, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", default="", help="zenoh: key prefix")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument(
+        "--objects", choices=["camera", "mocap", "file"],
+        help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
+    )
     s.add_argument("--json")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability, executive, planners")
-    s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
-    s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability`")
+    s.add_argument("task", help="timing | perception | camera | reachability | hal | executive | a scene file")
+    s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability` (and `bench camera`)")
     s.add_argument("--samples", type=int, default=200, help="reachability graph nodes")
     s.add_argument("--faults", type=int, default=50, help="bench executive: faults to inject")
     s.add_argument("--planners")
@@ -503,6 +513,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--namespace", default="", help="key prefix of the daemon's (and the robot's) key space")
     s.add_argument("--record-dir", help="write one MCAP recording per task here")
     s.add_argument("--planner", default="rlgp")
+    s.add_argument(
+        "--objects", choices=["camera", "mocap", "file"],
+        help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
+    )
     s.set_defaults(func=cmd_daemon)
 
     s = sub.add_parser("request", help="ask a running daemon: goal LITERAL..., cancel, estop, rearm, status")

@@ -242,6 +242,30 @@ def test_tags_are_placed_through_the_camera_pose_at_the_images_stamp():
         world.close()
 
 
+def test_a_jump_moves_an_object_only_once_confirmed():
+    from perception.tracker import ObjectTracker, Observation
+
+    def obs(x: float, t: float) -> list[Observation]:
+        T = np.eye(4)
+        T[0, 3] = x
+        return [Observation("cup", 1, T, 0.002, 0.01, t)]
+
+    tr = ObjectTracker(confirm=2)
+    for k in range(5):
+        tr.update(obs(0.0, 0.1 * k))
+    tr.update(obs(0.05, 0.5))  # one view 5 cm off (a flipped PnP solution): not a move
+    assert abs(tr.estimate("cup").T_world_object[0, 3]) < 1e-3
+    tr.update(obs(0.0, 0.6))
+    tr.update(obs(0.05, 0.7))  # a lone jump again, not in a row with the last one
+    assert abs(tr.estimate("cup").T_world_object[0, 3]) < 1e-3
+    tr.update(obs(0.051, 0.8))  # two in a row agree: moved
+    assert tr.estimate("cup").T_world_object[0, 3] == pytest.approx(0.051)
+    once = ObjectTracker()  # confirm=1: the first jump restarts the filter, as before
+    once.update(obs(0.0, 0.0))
+    once.update(obs(0.05, 0.1))
+    assert once.estimate("cup").T_world_object[0, 3] == pytest.approx(0.05)
+
+
 # ---------------------------------------------------------------------- over the wire
 def test_the_simulated_robots_camera_senses_objects_over_zenoh_and_sees_a_push():
     """sim-robot with its camera node, the HAL's session: images arrive stamped with the robot's clock,

@@ -64,6 +64,8 @@ MISSES = 3  # frames in a row an object in plain view is not detected before its
 VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is surely detected
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
 MIN_OBSERVATIONS = 2  # look_for: images an object must be seen in
+CONFIRM = 2  # images in a row that must agree before an object counts as moved (the tracker's confirm)
+MIN_SIDE_MARGIN = 1.3  # look_for: a view whose tag would be under this x the detector's minimum is skipped
 HEARTBEAT_WAIT_S = 1.0  # [s] look_for waits this long for fresh robot state before it gives up
 
 
@@ -165,9 +167,8 @@ class CameraObjects(ObjectSource):
         self.camera_frame = model.config.frames["camera"]
         self.tool_frame = model.manipulator().tool_frame
         self.registry = TagRegistry.from_scene(scene)
-        self.perception = Perception(
-            self.registry, camera_for_robot(model.name), TagDetector(detector), ObjectTracker(max_age_s=max_age_s)
-        )
+        tracker = ObjectTracker(max_age_s=max_age_s, confirm=CONFIRM)
+        self.perception = Perception(self.registry, camera_for_robot(model.name), TagDetector(detector), tracker)
         self.history = StampedHistory(model)
         self.rejects = RejectCounter("camera")
         self.frames = 0  # images processed
@@ -372,9 +373,10 @@ class CameraObjects(ObjectSource):
         return out
 
     def poses(self) -> dict[str, FloatArray]:
-        """T_world_object of every object with a fresh estimate (see the module docstring); cheap: no
-        image work happens here."""
-        return self._fresh()
+        """T_world_object of every object with a fresh estimate fused from MIN_OBSERVATIONS images or more
+        (one view's estimate, a restart from a far or grazing view, is not evidence that an object moved);
+        cheap: no image work happens here."""
+        return self._fresh(None, MIN_OBSERVATIONS)
 
     def look_for(
         self,
@@ -395,6 +397,7 @@ class CameraObjects(ObjectSource):
         untagged = frozenset(set(names) - tagged)
         views = 0
         detail = ""
+        too_far: set[str] = set()
 
         def seen() -> set[str]:
             return set(self._fresh(wanted, MIN_OBSERVATIONS))
@@ -409,8 +412,9 @@ class CameraObjects(ObjectSource):
                     if hal.lifecycle is Lifecycle.INACTIVE:
                         hal.activate()
                         activated = True
-                    why = self._point_head(hal, point)
-                    if why is None:  # the head cannot point there
+                    why = self._point_head(hal, point, name)
+                    if why is None:  # the head cannot point there, or the tag would be too small to see
+                        too_far.add(name)
                         continue
                     detail = why  # '' when the head got there
                     if not why:
@@ -423,6 +427,9 @@ class CameraObjects(ObjectSource):
         missing = frozenset((wanted - got) | untagged)
         if not detail:
             detail = f"not seen: {sorted(missing)}" if missing else "all seen"
+            far = sorted(too_far & missing)
+            if far:
+                detail += f" ({far}: no view from this base shows its tag large enough)"
         if missing:
             log.warning("look_for: %s (%d head views)", detail, views)
         return LookResult(frozenset(got), missing, untagged, views, time.monotonic() - t0, detail)
@@ -443,12 +450,22 @@ class CameraObjects(ObjectSource):
                     return
             time.sleep(0.02)
 
-    def _point_head(self, hal: RobotInterface, point: FloatArray, tries: int = 3) -> str | None:
+    def _tag_side_px(self, name: str, q: FloatArray, point: FloatArray) -> float:
+        """The expected shortest side [px] of the tags of ``name`` at ``point`` (facing up, as on a standing
+        object) in the image taken at ``q``: the size across the distance, foreshortened by the angle."""
+        T = self.model.fk(q, self.camera_frame)
+        ray = T[:3, 3] - np.asarray(point, float)
+        d = float(np.linalg.norm(ray))
+        cam = self.perception.camera
+        sizes = [m.size for m in (self.registry.get(i) for i in self.registry.ids) if m and m.object == name]
+        return max(sizes, default=0.0) * cam.fx / max(d, 1e-6) * abs(float(ray[2])) / max(d, 1e-6)
+
+    def _point_head(self, hal: RobotInterface, point: FloatArray, name: str, tries: int = 3) -> str | None:
         """Move the head to look at ``point``: '' when done, None when the head cannot point there, else
         why it stopped. A heartbeat lost for a moment (a loaded machine) pauses the move; it starts again
         from the measured state once the state is fresh, up to ``tries`` times."""
         for _ in range(tries):
-            why = self._head_move(hal, point)
+            why = self._head_move(hal, point, name)
             if why != "stale":
                 return why
             end = time.monotonic() + HEARTBEAT_WAIT_S
@@ -456,7 +473,7 @@ class CameraObjects(ObjectSource):
                 time.sleep(0.01)
         return f"look_for: no fresh robot state within {HEARTBEAT_WAIT_S} s: not moving the head"
 
-    def _head_move(self, hal: RobotInterface, point: FloatArray) -> str | None:
+    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str) -> str | None:
         st = hal.read_state()
         if st is None or not hal.heartbeat_ok():
             return "stale"
@@ -465,6 +482,8 @@ class CameraObjects(ObjectSource):
             q[self.model.index(n)] = st.position(n)
         q_view = look_at_q(self.model, q, point)
         if pointing_error(self.model, q_view, point) > math.radians(5.0):
+            return None
+        if self._tag_side_px(name, q_view, point) < MIN_SIDE_MARGIN * self.perception.detector.min_side_px:
             return None
         idx = list(self.model.group("head"))
         names = tuple(self.model.joint_names[i] for i in idx)
