@@ -120,6 +120,11 @@ class StampedHistory:
             q[self.model.index(n)] = v
         return q, wall
 
+    def earliest(self) -> float | None:
+        """The stamp [s] of the oldest joint state kept."""
+        with self._lock:
+            return self._js_t[0] if self._js_t else None
+
     def latest(self) -> tuple[float, float] | None:
         """(stamp [s], wall arrival [s]) of the newest joint state."""
         with self._lock:
@@ -173,6 +178,7 @@ class CameraObjects(ObjectSource):
         self.rejects = RejectCounter("camera")
         self.frames = 0  # images processed
         self.skipped = 0  # images replaced by a newer one before they were processed
+        self.before_history = 0  # images stamped before the first joint state this source received
         self.latency_ms: deque[float] = deque(maxlen=2000)  # image stamp (its joint state's arrival) to pose
         self.process_ms: deque[float] = deque(maxlen=2000)
         self._info: ri.CameraModel | None = None
@@ -293,6 +299,10 @@ class CameraObjects(ObjectSource):
         if cam is None:
             return False
         at = self.history.at(frame.stamp)
+        first = self.history.earliest()
+        if at is None and self._last_stamp == -math.inf and (first is None or frame.stamp < first):
+            self.before_history += 1  # taken before this source heard the robot (start-up): not an error
+            return False
         if at is None:
             self.rejects.reject(
                 "no_joint_state", f"no joint state within {MATCH_S * 1e3:.0f} ms of image stamp {frame.stamp:.3f}"
