@@ -9,8 +9,9 @@ fixtures, and at ``--rate`` Hz puts the robot at its latest measured configurati
 (PyBullet TinyRenderer, the model of ``perception.camera``) and publishes what the real robot's camera
 driver publishes: ``sensor_msgs/Image`` (rgb8) and ``sensor_msgs/CameraInfo`` (optionally
 ``CompressedImage``, JPEG) on the keys of ``robots/<robot>/zenoh_keys.toml``, stamped with the joint
-state's stamp (the robot's clock). Rendering takes tens of milliseconds: in its own process it never
-delays the robot's 100 Hz loop. Without fresh robot state it publishes nothing.
+state's stamp (the robot's clock). Rendering takes tens of milliseconds: in its own process (at a lower
+priority) it does not delay the robot's 100 Hz loop. Like a lazy camera driver it renders only while
+someone subscribes to the images; without fresh robot state it publishes nothing.
 """
 
 from __future__ import annotations
@@ -183,8 +184,16 @@ class CameraNode:
             q[self.model.index(n)] = v
         return stamp, q
 
+    def subscribed(self) -> bool:
+        """Whether anyone subscribes to the images (a lazy driver renders only then)."""
+        images = [p for n, p in self._pubs.items() if n != "camera_info"]
+        return any(p.matching_status.matching for p in images)
+
     def render_frame(self) -> bool:
-        """Render and publish one frame at the robot's latest state; False when there is none."""
+        """Render and publish one frame at the robot's latest state; False when there is none, or no one
+        subscribes to the images (rendering takes a core: not for nobody)."""
+        if not self.subscribed():
+            return False
         now = self._robot_now()
         if now is None:
             return False

@@ -321,3 +321,35 @@ def test_the_camera_source_is_the_zenoh_default_and_checks_its_backend():
         object_source_name(RunOptions(backend="zenoh", objects="lidar"))
     assert goal_objects(load_scene(SCENE)) == ["block_blue", "block_green"]
     assert goal_objects(load_scene(SCENE), ["(on block_green tray_green)"]) == ["block_green"]
+
+
+def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
+    """block_blue moved to the table's right, ~40 deg off the camera's axis at the start: look_for pans
+    the head through the HAL, finds it within 5 mm of where it is, and leaves the HAL inactive."""
+    from rlgp_exec.executive.runner import RunOptions, connect
+    from rlgp_exec.hal.types import Lifecycle
+    from rlgp_exec.scene.serialize import scene_to_toml
+    from sim.robot_process import RobotProcess
+
+    base = load_scene(SCENE)
+    pose = (0.5, -0.35, base.object("block_blue").pose[2], 0.3)
+    scene = base.with_object_poses({"block_blue": pose})
+    path = tmp_path / "aside.toml"
+    path.write_text(scene_to_toml(scene))
+    with RobotProcess(path, camera=True) as robot:
+        hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=robot.endpoint, heartbeat_timeout_s=1.0))
+        try:
+            time.sleep(1.5)
+            assert "block_blue" not in objects.poses()  # not in view from the start
+            found = objects.look_for(["block_blue"], hal, timeout_s=15.0)
+            assert found.ok and found.seen == {"block_blue"} and found.views >= 1, found
+            T = objects.poses()["block_blue"]
+            assert float(np.linalg.norm(T[:3, 3] - np.array(pose[:3]))) < 0.005
+            assert hal.lifecycle is Lifecycle.INACTIVE
+            st = hal.read_state()
+            assert st is not None and abs(st.position("head_pan_joint")) > 0.2  # it looked to the right
+            unseen = objects.look_for(["block_green", "tray_blue"], hal, timeout_s=5.0)
+            assert not unseen.ok and "tray_blue" in unseen.missing  # not an object with a tag: said so
+        finally:
+            objects.close()
+            hal.shutdown()
