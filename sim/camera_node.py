@@ -32,10 +32,11 @@ import numpy as np
 
 from perception.camera import camera_for_robot
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.camera_source import StampedHistory
 from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY, drawer_openings
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
-from rlgp_exec.hal.validate import RejectCounter
+from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
 from rlgp_exec.scene import load_scene
 from sim.camera import hide_floor, render_camera
@@ -88,8 +89,7 @@ class CameraNode:
         self._noise_on = noise_std > 0
         self.rejects = RejectCounter("camera_node")
         self._lock = threading.Lock()
-        self._js: tuple[float, tuple[str, ...], np.ndarray, float] | None = None  # stamp, names, q, wall
-        self._odom: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=50)
+        self.history = StampedHistory(self.model, self.rejects, history_s=1.0)
         self._truth: dict[str, np.ndarray] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -113,11 +113,12 @@ class CameraNode:
                     raise RlgpError(f"camera node: cannot reach the robot at {self.endpoint}: {e}") from e
                 time.sleep(0.2)
         s, k = self._session, self.keys
-        self._subs = [
-            s.declare_subscriber(k["joint_states"].key, self._guard(self._on_joint_states)),
-            s.declare_subscriber(k["odom"].key, self._guard(self._on_odom)),
-            s.declare_subscriber(self.mocap_key, self._guard(self._on_truth)),
-        ]
+        handlers = {
+            k["joint_states"].key: self.history.on_joint_states,
+            k["odom"].key: self.history.on_odom,
+            self.mocap_key: self._on_truth,
+        }
+        self._subs = [s.declare_subscriber(key, guarded(self.rejects, key, fn)) for key, fn in handlers.items()]
         for name in ("camera_info", "camera_image") + (("camera_compressed",) if self.jpeg else ()):
             self._pubs[name] = s.declare_publisher(k[name].key)
         self._thread = threading.Thread(target=self._run, name="camera-node", daemon=True)
@@ -134,31 +135,6 @@ class CameraNode:
         self.world.close()
 
     # ------------------------------------------------------------------ incoming
-    def _guard(self, fn: Any) -> Any:
-        def cb(sample: Any) -> None:
-            try:
-                fn(sample.payload.to_bytes())
-            except Exception as e:  # never let a payload kill the node
-                self.rejects.reject("internal", f"{type(e).__name__}: {e}")
-
-        return cb
-
-    def _on_joint_states(self, payload: bytes) -> None:
-        r = rc.parse_joint_state(payload)
-        if isinstance(r, rc.Rejected):
-            self.rejects.reject(r.key, r.reason)
-            return
-        with self._lock:
-            self._js = (r[0], r[1], r[2], time.monotonic())
-
-    def _on_odom(self, payload: bytes) -> None:
-        r = rc.parse_odometry(payload)
-        if isinstance(r, rc.Rejected):
-            self.rejects.reject(r.key, r.reason)
-            return
-        with self._lock:
-            self._odom.append((r[0], r[1]))
-
     def _on_truth(self, payload: bytes) -> None:
         try:
             poses = rc.parse_transforms(payload)
@@ -171,18 +147,11 @@ class CameraNode:
     # ------------------------------------------------------------------ frames
     def _robot_now(self) -> tuple[float, np.ndarray] | None:
         """(stamp, q (nq,)) of the latest joint state and the odometry of its tick, if fresh."""
-        with self._lock:
-            js, odom = self._js, list(self._odom)
-        if js is None or time.monotonic() - js[3] > STALE_S or not odom:
+        latest = self.history.latest()
+        if latest is None or time.monotonic() - latest[1] > STALE_S:
             return None
-        stamp, names, qj, _ = js
-        t_o, base = min(odom, key=lambda o: abs(o[0] - stamp))
-        if abs(t_o - stamp) > ODOM_MATCH_S:
-            return None
-        q = self.model.home(base)
-        for n, v in zip(names, qj, strict=True):
-            q[self.model.index(n)] = v
-        return stamp, q
+        at = self.history.at(latest[0], ODOM_MATCH_S)
+        return None if at is None else (latest[0], at[0])
 
     def subscribed(self) -> bool:
         """Whether anyone subscribes to the images (a lazy driver renders only then)."""

@@ -159,8 +159,8 @@ def test_the_camera_source_drops_counts_and_warns_once_per_kind(caplog):
                 src.on_camera_info(payload)
             for _, payload in _bad_payloads(rng):
                 src.on_image(payload)
-            src.on_joint_states(b"\x00\x01\x00\x00garbage")
-            src.on_odom(b"")
+            src.history.on_joint_states(b"\x00\x01\x00\x00garbage")
+            src.history.on_odom(b"")
         # an intact frame, but no valid CameraInfo yet: no camera model, no pose
         img = ri.parse_image(ri.encode_image(1.0, "head_rgbd_sensor_rgb_frame", np.zeros((480, 640, 3), np.uint8)))
         assert isinstance(img, ri.ImageFrame)
@@ -177,9 +177,10 @@ def test_the_camera_source_drops_counts_and_warns_once_per_kind(caplog):
 # ---------------------------------------------------------------------- placing tags in the world
 def test_history_gives_the_state_nearest_the_stamp_not_the_latest():
     from rlgp_exec.executive.camera_source import StampedHistory
+    from rlgp_exec.hal.validate import RejectCounter
 
     model = load_robot("hsr")
-    h = StampedHistory(model)
+    h = StampedHistory(model, RejectCounter("test"))
     names = tuple(model.joint_names[3:])
     for k in range(300):  # 3 s at 100 Hz, the pan joint sweeping; odometry arrives in its own order
         t = k * 0.01
@@ -217,8 +218,8 @@ def test_tags_are_placed_through_the_camera_pose_at_the_images_stamp():
             t = k * 0.01
             q = q0.copy()
             q[pan] += 0.0 if t <= 0.2 else 0.3 * min(1.0, (t - 0.2) / 0.2)
-            src.on_joint_states(rc.encode_joint_state(t, names, q[3:], np.zeros(len(names))))
-            src.on_odom(rc.encode_odometry(t, *q[:3], 0.0, 0.0, 0.0))
+            src.history.on_joint_states(rc.encode_joint_state(t, names, q[3:], np.zeros(len(names))))
+            src.history.on_odom(rc.encode_odometry(t, *q[:3], 0.0, 0.0, 0.0))
         img = render_camera(world, cam, background=background)  # taken at t = 0.2 s, q0
         for k in range(3):  # three frames of the same view, stamped 0.18 .. 0.2 s
             frame = ri.parse_image(ri.encode_image(0.18 + 0.01 * k, model.config.frames["camera"], img))

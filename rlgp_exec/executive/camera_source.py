@@ -44,7 +44,7 @@ from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle
-from rlgp_exec.hal.validate import RejectCounter
+from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import KeyMap
 from rlgp_exec.robot.head import look_at_q, pointing_error
 from rlgp_exec.robot.model import FloatArray, RobotModel
@@ -73,8 +73,8 @@ class StampedHistory:
     """Joint states and base poses by the robot's clock, the last ``history_s`` seconds, for the
     configuration at an image's stamp. Thread-safe."""
 
-    def __init__(self, model: RobotModel, history_s: float = HISTORY_S) -> None:
-        self.model, self.history_s = model, history_s
+    def __init__(self, model: RobotModel, rejects: RejectCounter, history_s: float = HISTORY_S) -> None:
+        self.model, self.rejects, self.history_s = model, rejects, history_s
         self._lock = threading.Lock()
         self._js_t: list[float] = []
         self._js: list[tuple[tuple[str, ...], np.ndarray, float]] = []  # names, q, wall arrival
@@ -89,6 +89,26 @@ class StampedHistory:
         if ts[-1] - ts[0] > 2 * keep_s:  # trim in batches: a list's front deletion is O(n)
             k = bisect.bisect_left(ts, ts[-1] - keep_s)
             del ts[:k], vs[:k]
+
+    def on_joint_states(self, payload: bytes) -> None:
+        """A sensor_msgs/JointState payload in (bad ones counted)."""
+        r = rc.parse_joint_state(payload)
+        if isinstance(r, rc.Rejected):
+            self.rejects.reject(r.key, f"joint_states: {r.reason}")
+            return
+        unknown = [n for n in r[1] if n not in self.model.joint_names]
+        if unknown:
+            self.rejects.reject("unknown_joint", f"joint_states: unknown joint(s) {unknown}")
+            return
+        self.add_joints(r[0], r[1], r[2], time.monotonic())
+
+    def on_odom(self, payload: bytes) -> None:
+        """A nav_msgs/Odometry payload in (bad ones counted)."""
+        r = rc.parse_odometry(payload)
+        if isinstance(r, rc.Rejected):
+            self.rejects.reject(r.key, f"odom: {r.reason}")
+            return
+        self.add_base(r[0], r[1])
 
     def add_joints(self, stamp: float, names: tuple[str, ...], q: np.ndarray, wall: float) -> None:
         with self._lock:
@@ -174,8 +194,8 @@ class CameraObjects(ObjectSource):
         self.registry = TagRegistry.from_scene(scene)
         tracker = ObjectTracker(max_age_s=max_age_s, confirm=CONFIRM)
         self.perception = Perception(self.registry, camera_for_robot(model.name), TagDetector(detector), tracker)
-        self.history = StampedHistory(model)
         self.rejects = RejectCounter("camera")
+        self.history = StampedHistory(model, self.rejects)
         self.frames = 0  # images processed
         self.skipped = 0  # images replaced by a newer one before they were processed
         self.before_history = 0  # images stamped before the first joint state this source received
@@ -193,12 +213,14 @@ class CameraObjects(ObjectSource):
         self._stop = False
         self._subs: list[Any] = []
         if session is not None:
-            guard = self._guard
+            handlers = {
+                "camera_image": self.on_image,
+                "camera_info": self.on_camera_info,
+                "joint_states": self.history.on_joint_states,
+                "odom": self.history.on_odom,
+            }
             self._subs = [
-                session.declare_subscriber(keys["camera_image"].key, guard("image", self.on_image)),
-                session.declare_subscriber(keys["camera_info"].key, guard("camera_info", self.on_camera_info)),
-                session.declare_subscriber(keys["joint_states"].key, guard("joint_states", self.on_joint_states)),
-                session.declare_subscriber(keys["odom"].key, guard("odom", self.on_odom)),
+                session.declare_subscriber(keys[t].key, guarded(self.rejects, t, fn)) for t, fn in handlers.items()
             ]
         self._thread: threading.Thread | None = None
         if worker:
@@ -206,33 +228,6 @@ class CameraObjects(ObjectSource):
             self._thread.start()
 
     # ------------------------------------------------------------------ incoming (Zenoh threads)
-    def _guard(self, topic: str, fn: Any) -> Any:
-        def cb(sample: Any) -> None:
-            try:
-                fn(sample.payload.to_bytes())
-            except Exception as e:  # a payload must never kill the subscriber
-                self.rejects.reject("internal", f"{topic}: {type(e).__name__}: {e}")
-
-        return cb
-
-    def on_joint_states(self, payload: bytes) -> None:
-        r = rc.parse_joint_state(payload)
-        if isinstance(r, rc.Rejected):
-            self.rejects.reject(r.key, f"joint_states: {r.reason}")
-            return
-        unknown = [n for n in r[1] if n not in self.model.joint_names]
-        if unknown:
-            self.rejects.reject("unknown_joint", f"joint_states: unknown joint(s) {unknown}")
-            return
-        self.history.add_joints(r[0], r[1], r[2], time.monotonic())
-
-    def on_odom(self, payload: bytes) -> None:
-        r = rc.parse_odometry(payload)
-        if isinstance(r, rc.Rejected):
-            self.rejects.reject(r.key, f"odom: {r.reason}")
-            return
-        self.history.add_base(r[0], r[1])
-
     def on_camera_info(self, payload: bytes) -> None:
         m = ri.parse_camera_info(payload)
         if isinstance(m, rc.Rejected):

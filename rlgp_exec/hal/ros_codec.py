@@ -140,11 +140,11 @@ def encode_string(value: str) -> bytes:
 
 
 # ---------------------------------------------------------------------- decoders
-def decode(payload: bytes, typename: str) -> Any:
-    """The message in ``payload``, or :class:`Rejected`. Never raises on bad bytes."""
+def decode(payload: bytes, typename: str, limit: int = MAX_PAYLOAD) -> Any:
+    """The message in ``payload`` (at most ``limit`` bytes), or :class:`Rejected`. Never raises on bad bytes."""
     n = len(payload)
-    if n > MAX_PAYLOAD:
-        return Rejected("too_large", f"{typename}: payload of {n} bytes > {MAX_PAYLOAD}")
+    if n > limit:
+        return Rejected("too_large", f"{typename}: payload of {n} bytes > {limit}")
     if n < 4 or payload[:4] not in _CDR_HEADERS:
         return Rejected("no_cdr_header", f"{typename}: no CDR encapsulation header in {payload[:4]!r} ({n} bytes)")
     try:

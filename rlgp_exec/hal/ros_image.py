@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from rlgp_exec.hal.ros_codec import Rejected, _header, _ser, _store, _t
+from rlgp_exec.hal.ros_codec import Rejected, _header, _ser, _t, decode
 
 __all__ = [
     "ENCODINGS",
@@ -38,7 +38,6 @@ MIN_SIDE_PX = 16  # [px] what the camera model accepts (perception.camera.Camera
 MAX_IMAGE_BYTES = MAX_SIDE_PX * MAX_SIDE_PX * 4 + 4096  # [bytes] a payload above this is dropped unread
 MAX_INFO_BYTES = 16 * 1024  # [bytes] a CameraInfo is a few hundred bytes
 ENCODINGS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}  # encoding -> channels (8 bit each)
-_CDR_HEADERS = (b"\x00\x01\x00\x00", b"\x00\x00\x00\x00")
 
 
 @dataclass(frozen=True)
@@ -70,18 +69,6 @@ class CameraModel:
 def _stamp_s(header: Any) -> float:
     st = header.stamp
     return float(st.sec) + float(st.nanosec) * 1e-9
-
-
-def _decode(payload: bytes, typename: str, limit: int) -> Any:
-    n = len(payload)
-    if n > limit:
-        return Rejected("too_large", f"{typename}: payload of {n} bytes > {limit}")
-    if n < 4 or payload[:4] not in _CDR_HEADERS:
-        return Rejected("no_cdr_header", f"{typename}: no CDR encapsulation header in {payload[:4]!r} ({n} bytes)")
-    try:
-        return _store().deserialize_cdr(payload, typename)
-    except Exception as e:  # corrupt bytes surface as any exception inside the deserialiser
-        return Rejected("malformed", f"{typename}: cannot decode {n} bytes: {type(e).__name__}: {e}")
 
 
 def _check_size(what: str, width: int, height: int) -> Rejected | None:
@@ -135,7 +122,7 @@ def encode_camera_info(stamp: float, frame_id: str, width: int, height: int, K: 
 # ---------------------------------------------------------------------- decoders
 def parse_image(payload: bytes) -> ImageFrame | Rejected:
     """The image of a sensor_msgs/Image payload (rgb8, bgr8, rgba8, bgra8 or mono8) as RGB or grey."""
-    m = _decode(payload, "sensor_msgs/msg/Image", MAX_IMAGE_BYTES)
+    m = decode(payload, "sensor_msgs/msg/Image", MAX_IMAGE_BYTES)
     if isinstance(m, Rejected):
         return m
     enc = str(m.encoding)
@@ -162,7 +149,7 @@ def parse_image(payload: bytes) -> ImageFrame | Rejected:
 
 def parse_compressed(payload: bytes) -> ImageFrame | Rejected:
     """The image of a sensor_msgs/CompressedImage payload (JPEG or PNG) as RGB."""
-    m = _decode(payload, "sensor_msgs/msg/CompressedImage", MAX_IMAGE_BYTES)
+    m = decode(payload, "sensor_msgs/msg/CompressedImage", MAX_IMAGE_BYTES)
     if isinstance(m, Rejected):
         return m
     fmt = str(m.format).lower()
@@ -181,7 +168,7 @@ def parse_compressed(payload: bytes) -> ImageFrame | Rejected:
 def parse_camera_info(payload: bytes) -> CameraModel | Rejected:
     """The rectified image's pinhole model of a sensor_msgs/CameraInfo payload: P's left (3, 3) block
     (the camera matrix of the rectified image), or K where P is all zero (an uncalibrated driver)."""
-    m = _decode(payload, "sensor_msgs/msg/CameraInfo", MAX_INFO_BYTES)
+    m = decode(payload, "sensor_msgs/msg/CameraInfo", MAX_INFO_BYTES)
     if isinstance(m, Rejected):
         return m
     w, h = int(m.width), int(m.height)
