@@ -195,7 +195,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
             if not errs:
                 raise RlgpError(f"the head camera saw none of {tagged}: {found.detail}")
             st = objects.stats()
-            missing = f"; not seen from the start: {found.detail}" if found.missing else ""
+            missing = f"; from the start pose: {found.detail}" if found.missing else ""
             return (
                 f"by the head camera over Zenoh ({found.views} head views, {st['frames']} images): "
                 f"{', '.join(errs)} from the truth{missing}"

@@ -65,6 +65,10 @@ VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is s
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
 MIN_OBSERVATIONS = 2  # look_for: images an object must be seen in
 CONFIRM = 2  # images in a row that must agree before an object counts as moved (the tracker's confirm)
+# a jump beyond max(GATE_SIGMA sigma, GATE_MIN_M) is a move: the PnP error figures are ~5x the errors seen
+# at 0.6-1.2 m, so the tracker's default 6 sigma took a 6 cm push for noise and blended it in over seconds
+GATE_SIGMA = 2.5
+GATE_MIN_M = 0.02
 MIN_SIDE_MARGIN = 1.3  # look_for: a view whose tag would be under this x the detector's minimum is skipped
 HEARTBEAT_WAIT_S = 1.0  # [s] look_for waits this long for fresh robot state before it gives up
 
@@ -192,7 +196,7 @@ class CameraObjects(ObjectSource):
         self.camera_frame = model.config.frames["camera"]
         self.tool_frame = model.manipulator().tool_frame
         self.registry = TagRegistry.from_scene(scene)
-        tracker = ObjectTracker(max_age_s=max_age_s, confirm=CONFIRM)
+        tracker = ObjectTracker(max_age_s=max_age_s, gate_sigma=GATE_SIGMA, gate_min_m=GATE_MIN_M, confirm=CONFIRM)
         self.perception = Perception(self.registry, camera_for_robot(model.name), TagDetector(detector), tracker)
         self.rejects = RejectCounter("camera")
         self.history = StampedHistory(model, self.rejects)
