@@ -135,6 +135,11 @@ class ObjectTracker:
         e = self._est.get(name)
         return e is None or e.age(now) > self.max_age_s
 
+    def put(self, estimate: ObjectEstimate) -> None:
+        """Set an object's estimate from other evidence (the robot put it down where its hand was)."""
+        self._est[estimate.object] = estimate
+        self._jumps.pop(estimate.object, None)
+
     def forget(self, name: str) -> None:
         self._est.pop(name, None)
         self._jumps.pop(name, None)

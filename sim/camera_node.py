@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import signal
 import sys
@@ -97,6 +98,7 @@ class CameraNode:
         self._pubs: dict[str, Any] = {}
         self._subs: list[Any] = []
         self.frames = 0
+        self._last_stamp = -math.inf  # the robot's clock at the last frame [s]
         self.render_ms: deque[float] = deque(maxlen=200)
 
     # ------------------------------------------------------------------ set-up
@@ -148,8 +150,8 @@ class CameraNode:
     def _robot_now(self) -> tuple[float, np.ndarray] | None:
         """(stamp, q (nq,)) of the latest joint state and the odometry of its tick, if fresh."""
         latest = self.history.latest()
-        if latest is None or time.monotonic() - latest[1] > STALE_S:
-            return None
+        if latest is None or time.monotonic() - latest[1] > STALE_S or latest[0] <= self._last_stamp:
+            return None  # no fresh state, or no new one since the last frame (a frame per robot tick at most)
         at = self.history.at(latest[0], ODOM_MATCH_S)
         return None if at is None else (latest[0], at[0])
 
@@ -167,6 +169,7 @@ class CameraNode:
         if now is None:
             return False
         stamp, q = now
+        self._last_stamp = stamp
         t0 = time.perf_counter()
         with self._lock:
             truth = dict(self._truth)

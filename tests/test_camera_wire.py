@@ -354,3 +354,45 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
         finally:
             objects.close()
             hal.shutdown()
+
+
+def test_a_grasped_object_rides_with_the_tool_and_stays_where_it_is_put_down():
+    """The gripper closes with the tool at an object's estimate: the object's pose follows the tool frame
+    at the latest joint state (no image needed); the gripper opens: it stays where the tool left it."""
+    from perception.tracker import ObjectEstimate
+    from rlgp_exec.executive.camera_source import CameraObjects
+
+    model, scene = load_robot("hsr"), load_scene(SCENE)
+    src = CameraObjects(None, load_key_map("hsr"), model, scene, worker=False)
+    names = tuple(model.joint_names[3:])
+    tool, grip = model.manipulator().tool_frame, model.index("hand_motor_joint")
+    q = model.home((0.0, -1.0, 1.57))
+    T_tool = model.fk(q, tool)
+    T_obj = T_tool.copy()
+    T_obj[:3, 3] += [0.0, 0.0, 0.03]  # the block just past the tool point
+    src.perception.tracker.put(ObjectEstimate("block_blue", T_obj, 0.002, 0.01, 0.0, 3, (1,)))
+
+    def at(t: float, q: np.ndarray) -> None:
+        src.history.on_joint_states(rc.encode_joint_state(t, names, q[3:], np.zeros(len(names))))
+        src.history.on_odom(rc.encode_odometry(t, *q[:3], 0.0, 0.0, 0.0))
+
+    q_closed = q.copy()
+    q_closed[grip] = -0.2  # closed on the block
+    at(0.1, q_closed)
+    src._follow_hand(model.fk(q_closed, tool), q_closed[grip], 0.1)
+    src._last_wall = time.monotonic()
+    q_moved = q_closed.copy()
+    q_moved[0] += 0.5  # the base carries it half a metre along x
+    at(0.2, q_moved)
+    P = src.poses()
+    assert np.allclose(P["block_blue"][:3, 3], T_obj[:3, 3] + [0.5, 0.0, 0.0], atol=1e-6)
+    q_open = q_moved.copy()
+    q_open[grip] = 1.0
+    src._follow_hand(model.fk(q_open, tool), q_open[grip], 0.3)
+    q_away = q_open.copy()
+    q_away[0] -= 1.0  # the robot drives off: the block stays
+    at(0.3, q_open)
+    at(0.4, q_away)
+    P = src.poses()
+    assert np.allclose(P["block_blue"][:3, 3], T_obj[:3, 3] + [0.5, 0.0, 0.0], atol=1e-6)
+    src.close()

@@ -8,9 +8,11 @@ while one is processed replace each other and are counted as skipped): AprilTag 
 the joint state *nearest the image's stamp* (the robot moved since), fused over views by the tracker.
 
 An estimate is returned by :meth:`poses` while it is fresh: younger than ``max_age_s`` on the robot's
-clock, and no older than ``HAND_AGE_S`` once the hand has been at it since it was seen (it may be in the
-hand or put elsewhere). One that should be in view, close and facing the camera, but is not detected in
-``MISSES`` frames in a row is forgotten (the object is not there any more). Without fresh joint states
+clock. One that should be in view, close and facing the camera, but is not detected in ``MISSES``
+frames in a row is forgotten (the object is not there any more). The hand is followed by
+proprioception, as the head camera seldom sees into it: when the gripper closes with the tool frame at
+an object's estimate, the object rides with the tool (its pose follows the tool frame at the latest joint
+state); when the gripper opens again, it stays where the tool left it. Without fresh joint states
 or images nothing is returned. Bad payloads and images are dropped and counted (:attr:`rejects`), with
 a warning for the first few of each kind; they never give a pose.
 
@@ -27,7 +29,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -58,8 +60,9 @@ MATCH_S = 0.02  # [s] an image needs a joint state (and odometry) this close to 
 HISTORY_S = 3.0  # [s] of joint states and odometry kept
 STATE_STALE_S = 0.5  # [s] wall: joint states older than this -> the robot is not being heard: no poses
 IMAGE_STALE_S = 1.0  # [s] wall: no image processed for this long -> the camera is not working: no poses
-HAND_AGE_S = 0.3  # [s] the age limit of an estimate the hand has been at since it was seen
-TOUCH_M = 0.10  # [m] the tool frame this close to an object's estimate: the hand is at it
+TOUCH_M = 0.10  # [m] the tool frame this close to an object's estimate when the gripper closes: grasped
+CLOSED_FRACTION = 0.25  # the gripper this far from open towards closed: closing (on an object)
+OPEN_FRACTION = 0.1  # ... and back within this much of open: released
 MISSES = 3  # frames in a row an object in plain view is not detected before its estimate is forgotten
 VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is surely detected
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
@@ -185,7 +188,7 @@ class CameraObjects(ObjectSource):
         model: RobotModel,
         scene: Scene,
         *,
-        max_age_s: float = 5.0,
+        max_age_s: float = 60.0,
         detector: str = "opencv",
         worker: bool = True,
     ) -> None:
@@ -208,7 +211,10 @@ class CameraObjects(ObjectSource):
         self._info: ri.CameraModel | None = None
         self._info_cam: tuple[ri.CameraModel, CameraIntrinsics] | None = None
         self._lock = threading.Lock()  # the tracker and the bookkeeping below
-        self._touched: dict[str, float] = {}  # object -> the last stamp the hand was at its estimate
+        self._held: tuple[str, FloatArray] | None = None  # (object, T_tool_object (4, 4)) while grasped
+        grip = model.manipulator()
+        self._gripper_i = model.index(model.joint_names[model.group(grip.gripper)[0]])
+        self._grip_open, self._grip_closed = float(grip.open), float(grip.closed)
         self._misses: dict[str, int] = {}
         self._last_stamp = -math.inf
         self._last_wall = -math.inf
@@ -316,7 +322,8 @@ class CameraObjects(ObjectSource):
             except PerceptionError as e:
                 self.rejects.reject("bad_image", str(e))
                 return False
-            self._bookkeep(set(rep.updated), T_world_camera, T_world_tool[:3, 3], frame.stamp, cam)
+            self._follow_hand(T_world_tool, float(q[self._gripper_i]), frame.stamp)
+            self._bookkeep(set(rep.updated), T_world_camera, cam)
             self._last_stamp = frame.stamp
             self._last_wall = time.monotonic()
         self.frames += 1
@@ -324,15 +331,38 @@ class CameraObjects(ObjectSource):
         self.process_ms.append((time.perf_counter() - t0) * 1e3)
         return True
 
-    def _bookkeep(
-        self, updated: set[str], T_world_camera: FloatArray, p_tool: FloatArray, stamp: float, cam: CameraIntrinsics
-    ) -> None:
-        """The hand's visits and the objects missing from where they should be seen (the lock held)."""
+    def _follow_hand(self, T_world_tool: FloatArray, gripper: float, stamp: float) -> None:
+        """Grasp and release from the gripper joint and the tool frame (the lock held)."""
+        span = self._grip_open - self._grip_closed
+        tracker = self.perception.tracker
+        if self._held is None and gripper < self._grip_open - CLOSED_FRACTION * span:
+            near = [
+                (float(np.linalg.norm(e.T_world_object[:3, 3] - T_world_tool[:3, 3])), n)
+                for n, e in tracker.estimates().items()
+            ]
+            near = [x for x in near if x[0] < TOUCH_M]
+            if near:
+                name = min(near)[1]
+                est = tracker.estimate(name)
+                assert est is not None
+                self._held = (name, np.linalg.inv(T_world_tool) @ est.T_world_object)
+                log.info("camera: %s grasped (gripper at %.2f, tool %.3f m from it)", name, gripper, min(near)[0])
+        elif self._held is not None and gripper > self._grip_open - OPEN_FRACTION * span:
+            name, T_tool_object = self._held
+            self._held = None
+            est = tracker.estimate(name)
+            if est is not None:
+                tracker.put(replace(est, T_world_object=T_world_tool @ T_tool_object, stamp=stamp))
+            log.info("camera: %s released", name)
+
+    def _bookkeep(self, updated: set[str], T_world_camera: FloatArray, cam: CameraIntrinsics) -> None:
+        """The objects missing from where they should be seen (the lock held)."""
         T_camera_world = np.asarray(np.linalg.inv(T_world_camera), dtype=np.float64)
         tracker = self.perception.tracker
+        held = self._held[0] if self._held is not None else None
         for name, est in tracker.estimates().items():
-            if np.linalg.norm(est.T_world_object[:3, 3] - p_tool) < TOUCH_M:
-                self._touched[name] = stamp
+            if name == held:
+                continue
             if name in updated:
                 self._misses[name] = 0
                 continue
@@ -371,14 +401,16 @@ class CameraObjects(ObjectSource):
         out = {}
         with self._lock:
             ests = self.perception.tracker.estimates()
-            touched = dict(self._touched)
+            held = self._held
         for name, est in ests.items():
             if names is not None and name not in names:
                 continue
-            age = now - est.stamp
-            limit = HAND_AGE_S if touched.get(name, -math.inf) >= est.stamp else self.max_age_s
-            if age <= limit and est.n_updates >= min_updates:
+            if now - est.stamp <= self.max_age_s and est.n_updates >= min_updates:
                 out[name] = est.T_world_object
+        if held is not None and (names is None or held[0] in names):
+            at = self.history.at(now)
+            if at is not None:  # where the tool is now, not where the last image saw it
+                out[held[0]] = self.model.fk(at[0], self.tool_frame) @ held[1]
         return out
 
     def poses(self) -> dict[str, FloatArray]:
