@@ -172,12 +172,6 @@ class LookResult:
         return not self.missing
 
 
-@dataclass
-class _Frame:
-    frame: ri.ImageFrame
-    wall: float  # arrival [s] monotonic
-
-
 class CameraObjects(ObjectSource):
     """Object poses from the head camera's images on ``session`` (the HAL's)."""
 
@@ -218,10 +212,14 @@ class CameraObjects(ObjectSource):
         self._misses: dict[str, int] = {}
         self._last_stamp = -math.inf
         self._last_wall = -math.inf
-        self._pending: _Frame | None = None
+        self._pending: bytes | None = None  # the newest image payload not yet processed
         self._wake = threading.Condition()
         self._stop = False
         self._subs: list[Any] = []
+        self._thread: threading.Thread | None = None
+        if worker:  # before the subscriptions: on_image hands frames to it from the first one
+            self._thread = threading.Thread(target=self._work, name="camera-objects", daemon=True)
+            self._thread.start()
         if session is not None:
             handlers = {
                 "camera_image": self.on_image,
@@ -232,10 +230,6 @@ class CameraObjects(ObjectSource):
             self._subs = [
                 session.declare_subscriber(keys[t].key, guarded(self.rejects, t, fn)) for t, fn in handlers.items()
             ]
-        self._thread: threading.Thread | None = None
-        if worker:
-            self._thread = threading.Thread(target=self._work, name="camera-objects", daemon=True)
-            self._thread.start()
 
     # ------------------------------------------------------------------ incoming (Zenoh threads)
     def on_camera_info(self, payload: bytes) -> None:
@@ -246,19 +240,23 @@ class CameraObjects(ObjectSource):
         self._info = m
 
     def on_image(self, payload: bytes) -> None:
-        """Decode an Image payload and hand it to the worker (the newest waiting frame wins)."""
+        """Hand an Image payload to the worker (the newest waiting one wins), or without a worker decode
+        and process it here. The Zenoh thread only stores it: the robot's state arrives on that thread too."""
+        if self._thread is None:
+            self._handle(payload)
+            return
+        with self._wake:
+            if self._pending is not None:
+                self.skipped += 1
+            self._pending = payload
+            self._wake.notify()
+
+    def _handle(self, payload: bytes) -> None:
         f = ri.parse_image(payload)
         if isinstance(f, rc.Rejected):
             self.rejects.reject(f.key, f.reason)
             return
-        self.submit(f)
-
-    def submit(self, frame: ri.ImageFrame) -> None:
-        with self._wake:
-            if self._pending is not None:
-                self.skipped += 1
-            self._pending = _Frame(frame, time.monotonic())
-            self._wake.notify()
+        self.process(f)
 
     # ------------------------------------------------------------------ processing (worker thread)
     def _work(self) -> None:
@@ -272,7 +270,7 @@ class CameraObjects(ObjectSource):
             if job is None:
                 continue
             try:
-                self.process(job.frame)
+                self._handle(job)
             except Exception:  # a bug on one frame must not end sensing
                 log.exception("camera: processing a frame failed")
 
