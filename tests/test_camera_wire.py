@@ -396,3 +396,33 @@ def test_a_grasped_object_rides_with_the_tool_and_stays_where_it_is_put_down():
     P = src.poses()
     assert np.allclose(P["block_blue"][:3, 3], T_obj[:3, 3] + [0.5, 0.0, 0.0], atol=1e-6)
     src.close()
+
+
+def test_an_object_never_seen_is_grasped_where_the_scene_has_it_and_put_down_where_the_tool_left_it():
+    from rlgp_exec.executive.camera_source import CameraObjects
+
+    model = load_robot("hsr")
+    tool, grip = model.manipulator().tool_frame, model.index("hand_motor_joint")
+    q = model.home((0.0, -1.0, 1.57))
+    p_tool = model.fk(q, tool)[:3, 3]
+    scene = load_scene(SCENE).with_object_poses({"block_green": (p_tool[0], p_tool[1], p_tool[2] + 0.03, 0.0)})
+    src = CameraObjects(None, load_key_map("hsr"), model, scene, worker=False)
+    names = tuple(model.joint_names[3:])
+
+    def at(t: float, q: np.ndarray) -> None:
+        src.history.on_joint_states(rc.encode_joint_state(t, names, q[3:], np.zeros(len(names))))
+        src.history.on_odom(rc.encode_odometry(t, *q[:3], 0.0, 0.0, 0.0))
+
+    q_closed = q.copy()
+    q_closed[grip] = -0.2
+    src._follow_hand(model.fk(q_closed, tool), q_closed[grip], 0.1)
+    q_put = q_closed.copy()
+    q_put[1] += 0.4
+    q_put[grip] = 1.0
+    src._follow_hand(model.fk(q_put, tool), q_put[grip], 0.5)
+    at(0.5, q_put)
+    src._last_wall = time.monotonic()
+    P = src.poses()
+    assert set(P) == {"block_green"}  # block_blue was never grasped nor seen: absent
+    assert np.allclose(P["block_green"][:3, 3], [p_tool[0], p_tool[1] + 0.4, p_tool[2] + 0.03], atol=1e-6)
+    src.close()

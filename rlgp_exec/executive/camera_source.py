@@ -40,7 +40,7 @@ from perception.detector import TagDetector
 from perception.look_around import candidate_points
 from perception.pipeline import Perception
 from perception.registry import TagRegistry
-from perception.tracker import ObjectTracker
+from perception.tracker import ObjectEstimate, ObjectTracker
 from rlgp_exec.executive.world import ObjectSource
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
@@ -63,6 +63,7 @@ IMAGE_STALE_S = 1.0  # [s] wall: no image processed for this long -> the camera 
 TOUCH_M = 0.10  # [m] the tool frame this close to an object's estimate when the gripper closes: grasped
 CLOSED_FRACTION = 0.25  # the gripper this far from open towards closed: closing (on an object)
 OPEN_FRACTION = 0.1  # ... and back within this much of open: released
+RELEASED_STD_M = 0.005  # [m] the error figure of an object put down, not seen, where the tool left it
 MISSES = 3  # frames in a row an object in plain view is not detected before its estimate is forgotten
 VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is surely detected
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
@@ -334,23 +335,23 @@ class CameraObjects(ObjectSource):
         span = self._grip_open - self._grip_closed
         tracker = self.perception.tracker
         if self._held is None and gripper < self._grip_open - CLOSED_FRACTION * span:
-            near = [
-                (float(np.linalg.norm(e.T_world_object[:3, 3] - T_world_tool[:3, 3])), n)
-                for n, e in tracker.estimates().items()
-            ]
+            # where each object is believed to be: its estimate, else the scene's prior (never seen yet)
+            believed = {o.name: o.T for o in self.scene.objects if o.tag is not None}
+            believed.update({n: e.T_world_object for n, e in tracker.estimates().items()})
+            near = [(float(np.linalg.norm(T[:3, 3] - T_world_tool[:3, 3])), n) for n, T in believed.items()]
             near = [x for x in near if x[0] < TOUCH_M]
             if near:
-                name = min(near)[1]
-                est = tracker.estimate(name)
-                assert est is not None
-                self._held = (name, np.linalg.inv(T_world_tool) @ est.T_world_object)
-                log.info("camera: %s grasped (gripper at %.2f, tool %.3f m from it)", name, gripper, min(near)[0])
+                d, name = min(near)
+                self._held = (name, np.linalg.inv(T_world_tool) @ believed[name])
+                log.info("camera: %s grasped (gripper at %.2f, tool %.3f m from it)", name, gripper, d)
         elif self._held is not None and gripper > self._grip_open - OPEN_FRACTION * span:
             name, T_tool_object = self._held
             self._held = None
+            T = T_world_tool @ T_tool_object
             est = tracker.estimate(name)
-            if est is not None:
-                tracker.put(replace(est, T_world_object=T_world_tool @ T_tool_object, stamp=stamp))
+            if est is None:  # grasped where the scene had it, never seen: as sure as a fused estimate
+                est = ObjectEstimate(name, T, RELEASED_STD_M, 10 * RELEASED_STD_M, stamp, MIN_OBSERVATIONS, ())
+            tracker.put(replace(est, T_world_object=T, stamp=stamp, n_updates=max(est.n_updates, MIN_OBSERVATIONS)))
             log.info("camera: %s released", name)
 
     def _bookkeep(self, updated: set[str], T_world_camera: FloatArray, cam: CameraIntrinsics) -> None:
