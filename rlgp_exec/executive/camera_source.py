@@ -65,6 +65,7 @@ CLOSED_FRACTION = 0.25  # the gripper this far from open towards closed: closing
 OPEN_FRACTION = 0.1  # ... and back within this much of open: released
 RELEASED_STD_M = 0.005  # [m] the error figure of an object put down, not seen, where the tool left it
 MISSES = 3  # frames in a row an object in plain view is not detected before its estimate is forgotten
+OCCLUDED_M = 0.3  # [m] an object this close to the tool frame may be hidden by the hand: not a miss
 VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is surely detected
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
 MIN_OBSERVATIONS = 2  # look_for: images an object must be seen in
@@ -322,7 +323,7 @@ class CameraObjects(ObjectSource):
                 self.rejects.reject("bad_image", str(e))
                 return False
             self._follow_hand(T_world_tool, float(q[self._gripper_i]), frame.stamp)
-            self._bookkeep(set(rep.updated), T_world_camera, cam)
+            self._bookkeep(set(rep.updated), T_world_camera, T_world_tool[:3, 3], cam)
             self._last_stamp = frame.stamp
             self._last_wall = time.monotonic()
         self.frames += 1
@@ -354,13 +355,17 @@ class CameraObjects(ObjectSource):
             tracker.put(replace(est, T_world_object=T, stamp=stamp, n_updates=max(est.n_updates, MIN_OBSERVATIONS)))
             log.info("camera: %s released", name)
 
-    def _bookkeep(self, updated: set[str], T_world_camera: FloatArray, cam: CameraIntrinsics) -> None:
-        """The objects missing from where they should be seen (the lock held)."""
+    def _bookkeep(
+        self, updated: set[str], T_world_camera: FloatArray, p_tool: FloatArray, cam: CameraIntrinsics
+    ) -> None:
+        """The objects missing from where they should be seen (the lock held); not those near the hand,
+        which may hide them (just put down, the hand is above the tag)."""
         T_camera_world = np.asarray(np.linalg.inv(T_world_camera), dtype=np.float64)
         tracker = self.perception.tracker
         held = self._held[0] if self._held is not None else None
         for name, est in tracker.estimates().items():
-            if name == held:
+            if name == held or float(np.linalg.norm(est.T_world_object[:3, 3] - p_tool)) < OCCLUDED_M:
+                self._misses.pop(name, None)
                 continue
             if name in updated:
                 self._misses[name] = 0
