@@ -113,7 +113,7 @@ def _first_motion(scene_path: Path, seed: int) -> dict[str, Any]:
             first: list[float] = []
 
             def watch() -> None:  # cancel once the robot has been commanded: the figure is taken
-                while not first and ex.sm.state.name not in ("IDLE", "FAULT", "ESTOPPED"):
+                while not first and time.perf_counter() - t0 < 60.0 and ex.sm.state.name not in ("FAULT", "ESTOPPED"):
                     if ex.actor.cycles > 0:
                         first.append(time.perf_counter() - t0)
                         ex.cancel()
