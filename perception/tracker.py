@@ -6,7 +6,10 @@ weighting (positions; rotations by a weighted quaternion mean). Over time each o
 constant-position filter: the variance grows by ``process_std`` [m/sqrt(s)] and each fused
 measurement updates it with a Kalman gain; rotation is blended with the same gain. A measurement
 further than ``gate_sigma`` sigmas (and ``gate_min_m``) from the estimate is taken as the object having
-been moved: the estimate restarts from it. An estimate older than ``max_age_s`` is stale.
+been moved: the estimate restarts from it — with ``confirm`` > 1, once that many measurements in a row
+agree on the new place (one poor view, a flipped PnP solution at a grazing angle, does not move an
+object; until then the jump is held aside and the estimate kept). An estimate older than ``max_age_s``
+is stale.
 """
 
 from __future__ import annotations
@@ -63,11 +66,18 @@ def _fuse(obs: list[Observation]) -> tuple[FloatArray, float, float]:
 
 class ObjectTracker:
     def __init__(
-        self, max_age_s: float = 2.0, process_std: float = 0.002, gate_sigma: float = 6.0, gate_min_m: float = 0.03
+        self,
+        max_age_s: float = 2.0,
+        process_std: float = 0.002,
+        gate_sigma: float = 6.0,
+        gate_min_m: float = 0.03,
+        confirm: int = 1,
     ) -> None:
         self.max_age_s, self.process_std = max_age_s, process_std
         self.gate_sigma, self.gate_min_m = gate_sigma, gate_min_m
+        self.confirm = max(1, int(confirm))
         self._est: dict[str, ObjectEstimate] = {}
+        self._jumps: dict[str, list[ObjectEstimate]] = {}  # measurements away from the estimate, in a row
 
     def update(self, observations: list[Observation]) -> list[str]:
         """Fold in one image's observations; returns the objects updated."""
@@ -86,9 +96,17 @@ class ObjectTracker:
             var = prev.pos_std_m**2 + self.process_std**2 * dt
             jump = float(np.linalg.norm(T_m[:3, 3] - prev.T_world_object[:3, 3]))
             if jump > max(self.gate_sigma * math.sqrt(var + ps_m**2), self.gate_min_m):
-                log.info("%s moved %.3f m since the last estimate: restarting its filter", name, jump)
-                self._est[name] = ObjectEstimate(name, T_m, ps_m, rs_m, stamp, 1, tags)
+                held = self._jumps.setdefault(name, [])
+                first = held[0].T_world_object[:3, 3] if held else T_m[:3, 3]
+                if held and np.linalg.norm(T_m[:3, 3] - first) > self.gate_min_m:
+                    held.clear()  # the jumps disagree among themselves: noise, not a move
+                held.append(ObjectEstimate(name, T_m, ps_m, rs_m, stamp, 1, tags))
+                if len(held) >= self.confirm:
+                    log.info("%s moved %.3f m since the last estimate: restarting its filter", name, jump)
+                    self._est[name] = held[-1]
+                    self._jumps.pop(name, None)
                 continue
+            self._jumps.pop(name, None)
             k = var / (var + ps_m**2)
             rvar = prev.rot_std_rad**2 + (self.process_std * 10.0) ** 2 * dt  # [rad^2]: rotation drifts too
             kr = rvar / (rvar + rs_m**2)
@@ -117,5 +135,11 @@ class ObjectTracker:
         e = self._est.get(name)
         return e is None or e.age(now) > self.max_age_s
 
+    def put(self, estimate: ObjectEstimate) -> None:
+        """Set an object's estimate from other evidence (the robot put it down where its hand was)."""
+        self._est[estimate.object] = estimate
+        self._jumps.pop(estimate.object, None)
+
     def forget(self, name: str) -> None:
         self._est.pop(name, None)
+        self._jumps.pop(name, None)

@@ -59,6 +59,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result = run_reachability_bench(
             args.scene_file, samples=args.samples, seed=args.seed or 0, workers=args.workers
         )
+    elif task == "camera":
+        from rlgp_exec.executive.camera_bench import SCENE, run_camera_bench
+
+        result = run_camera_bench(Path(args.scene_file) if args.scene_file else SCENE, seed=args.seed or 0)
     elif task == "hal":
         from rlgp_exec.hal.bench import run_hal_bench
 
@@ -78,7 +82,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     else:
         print(
-            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, hal, executive, "
+            f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, camera, hal, executive, "
             "reachability SCENE, "
             "or a scene file (planners side by side: --planners rlgp,lgp --seeds N)",
             file=sys.stderr,
@@ -107,7 +111,23 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     ):
         if value:
             argv += [flag, value]
-    return server_main(argv)
+    if not args.camera:
+        return server_main(argv)
+    import subprocess
+
+    from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT
+    from sim.robot_process import camera_command
+
+    if args.transport != "zenoh" or not args.scene:
+        raise RlgpError("sim-robot --camera publishes over zenoh and renders a scene: give --transport zenoh --scene")
+    # the camera node waits for the server's endpoint, so it can start first
+    cam = subprocess.Popen(camera_command(args.robot, args.scene, args.endpoint or DEFAULT_ENDPOINT,
+                                          args.namespace or "", args.camera_jpeg))
+    try:
+        return server_main(argv)
+    finally:
+        cam.terminate()
+        cam.wait(10)
 
 
 # ---------------------------------------------------------------------------------- plan
@@ -167,6 +187,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         namespace=args.namespace,
         zenoh_config=_zenoh_config(args),
         seed=args.seed,
+        objects=args.objects,
     )
     result, _ = run_task(scene, opts, args.goal)
     print(f"{scene.name}: {result.status.value}: {result.detail}")
@@ -225,6 +246,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             endpoint=args.endpoint,
             namespace=args.namespace,
             zenoh_config=config if args.backend == "zenoh" else None,
+            objects=args.objects,
         ),
         DaemonOptions(
             args.listen or (None if config else DEFAULT_LISTEN),
@@ -474,12 +496,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--namespace", default="", help="zenoh: key prefix")
     _zenoh_config_flag(s)
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument(
+        "--objects", choices=["camera", "mocap", "file"],
+        help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
+    )
     s.add_argument("--json")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability, executive, planners")
-    s.add_argument("task", help="timing | perception | reachability | hal | executive | a scene file")
-    s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability`")
+    s.add_argument("task", help="timing | perception | camera | reachability | hal | executive | a scene file")
+    s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability` (and `bench camera`)")
     s.add_argument("--samples", type=int, default=200, help="reachability graph nodes")
     s.add_argument("--faults", type=int, default=50, help="bench executive: faults to inject")
     s.add_argument("--planners")
@@ -518,6 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--endpoint", help="zenoh: the endpoint to listen on, e.g. tcp/127.0.0.1:7447")
     s.add_argument("--namespace", help="zenoh: key prefix, for several robots on one network")
     _zenoh_config_flag(s)
+    s.add_argument("--camera", action="store_true", help="zenoh: also publish the head camera (sim.camera_node)")
+    s.add_argument("--camera-jpeg", action="store_true", help="with --camera: also sensor_msgs/CompressedImage")
     s.set_defaults(func=cmd_sim_robot)
 
     s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")
@@ -532,6 +560,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--record-dir", help="write one MCAP recording per task here")
     s.add_argument("--planner", default="rlgp")
     _zenoh_config_flag(s)
+    s.add_argument(
+        "--objects", choices=["camera", "mocap", "file"],
+        help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
+    )
     s.set_defaults(func=cmd_daemon)
 
     s = sub.add_parser(

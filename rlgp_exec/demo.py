@@ -4,9 +4,13 @@ and transport boundary.
 The world: the scene file with its tagged objects moved up to 4 cm away (the file is wrong, as on a
 real robot). Sense: the head camera looks around (rendered images, AprilTags, PnP, fusion) and the
 perceived scene replaces the file's poses. Robot: ``sim-robot`` runs the true world in its own process
-and speaks the HSR's Zenoh interface. Executive: SENSE (the robot's state; object poses from the
-server's mocap stream), PLAN (R-LGP, validated by replay), TIME (TOPPRA), ACT (Ruckig at 100 Hz over
-Zenoh, monitored), VERIFY (the goal literals on the sensed poses). Everything is recorded to MCAP; the
+and speaks the HSR's Zenoh interface, its head camera (``sim.camera_node``) rendered in a process of
+its own and published as ROS 2 images. Camera: the executive's camera source reads those images over
+Zenoh, points the head at the task's objects and reports each one's error against the true world.
+Executive: SENSE (the robot's state; object poses from the head camera, or — in a scene with a drawer,
+whose opening and contents no camera sees — from the server's mocap stream), PLAN (R-LGP, validated by
+replay), TIME (TOPPRA), ACT (Ruckig at 100 Hz over Zenoh, monitored), VERIFY (the goal literals on the
+sensed poses). Everything is recorded to MCAP; the
 base path is plotted from the recording.
 
 Each stage reports what it measured; the report's ``ok`` is False if any stage failed.
@@ -164,22 +168,60 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
     def robot() -> str:
         from sim.robot_process import RobotProcess
 
-        robot = RobotProcess(state["truth_path"])  # type: ignore[arg-type]
+        robot = RobotProcess(state["truth_path"], camera=True)  # type: ignore[arg-type]
         state["proc"], state["endpoint"] = robot, robot.endpoint
-        return f"sim-robot (pid {robot.pid}) serving the HSR's Zenoh interface on {robot.endpoint}"
+        return (
+            f"sim-robot (pid {robot.pid}) serving the HSR's Zenoh interface on {robot.endpoint}, "
+            f"its head camera from pid {robot.camera.pid if robot.camera else '-'}"
+        )
+
+    def camera() -> str:
+        import numpy as np
+
+        from rlgp_exec.executive.camera_source import CameraObjects
+        from rlgp_exec.executive.runner import RunOptions, connect
+
+        truth = state["truth"]
+        hal, objects = connect(truth, RunOptions(backend="zenoh", endpoint=state["endpoint"], objects="camera"))  # type: ignore[arg-type]
+        try:
+            assert isinstance(objects, CameraObjects)
+            tagged = sorted(o.name for o in truth.objects if o.tag is not None)  # type: ignore[attr-defined]
+            found = objects.look_for(tagged, hal)
+            poses = objects.poses()
+            errs = [
+                f"{n} {np.linalg.norm(poses[n][:3, 3] - truth.object(n).T[:3, 3]) * 1e3:.1f} mm"  # type: ignore[attr-defined]
+                for n in tagged if n in poses
+            ]
+            if not errs:
+                raise RlgpError(f"the head camera saw none of {tagged}: {found.detail}")
+            st = objects.stats()
+            missing = f"; from the start pose: {found.detail}" if found.missing else ""
+            return (
+                f"by the head camera over Zenoh ({found.views} head views, {st['frames']} images): "
+                f"{', '.join(errs)} from the truth{missing}"
+            )
+        finally:
+            objects.close()
+            hal.shutdown()
 
     def execute() -> str:
         from rlgp_exec.executive.runner import RunOptions, run_task
 
         rec = out / "demo.mcap"
-        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed)  # type: ignore[arg-type]
+        drawers = any(f.kind == "drawer_cabinet" for f in state["perceived"].fixtures)  # type: ignore[attr-defined]
+        source = "mocap" if drawers else "camera"
+        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects=source)  # type: ignore[arg-type]
         result, _ = run_task(state["perceived"], opts)  # type: ignore[arg-type]
         report.files.append(rec)
         state["recording"] = rec
         if not result.ok:
             raise RlgpError(f"{result.status.value}: {result.detail}")
+        how = (
+            "objects sensed by the mocap stream (a camera sees neither a drawer's opening nor what lies in a "
+            "closed drawer)" if drawers else "objects sensed by the head camera"
+        )
         return (
-            f"{' '.join(result.executed)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
+            f"{how}; {' '.join(result.executed)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
             f"{result.replans} replan(s)), first motion after {result.time_to_first_motion_s:.1f} s, execution "
             f"{result.execution_time_s:.1f} s, base travelled {result.base_distance_m:.1f} m; {result.detail}"
         )
@@ -201,6 +243,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
             ("world", pictures),
             ("perceive", perceive),
             ("robot", robot),
+            ("camera", camera),
             ("executive", execute),
             ("replay", plot),
         ):

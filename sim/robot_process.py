@@ -1,5 +1,6 @@
 """``RobotProcess``: a ``sim-robot`` server in its own process over Zenoh on a free loopback port — what
-the demo, the benchmarks, the tests and the tools talk to (a real process and transport boundary)."""
+the demo, the benchmarks, the tests and the tools talk to (a real process and transport boundary) — and,
+with ``camera=True``, its head camera (``sim.camera_node``) in a second process."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from pathlib import Path
 
 from rlgp_exec.errors import RlgpError
 
-__all__ = ["RobotProcess", "free_endpoint"]
+__all__ = ["RobotProcess", "camera_command", "free_endpoint"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,11 +25,38 @@ def free_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
-class RobotProcess:
-    """Start ``python -m sim.robot_server --transport zenoh`` and wait for it to say it is ready."""
+def camera_command(robot: str, scene: str | Path, endpoint: str, namespace: str = "", jpeg: bool = False) -> list[str]:
+    """The command line of the camera node of the robot server at ``endpoint``."""
+    cmd = [sys.executable, "-m", "sim.camera_node", "--robot", robot, "--scene", str(scene), "--endpoint", endpoint]
+    if namespace:
+        cmd += ["--namespace", namespace]
+    return cmd + (["--jpeg"] if jpeg else [])
 
-    def __init__(self, scene: str | Path | None = None, robot: str = "hsr", endpoint: str | None = None) -> None:
+
+def _wait_ready(proc: subprocess.Popen[str], what: str) -> str:
+    line = proc.stdout.readline() if proc.stdout else ""
+    if "ready" not in line:
+        err = proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
+        raise RlgpError(f"{what} did not start: {line.strip()} {err.strip()}")
+    return line.strip()
+
+
+class RobotProcess:
+    """Start ``python -m sim.robot_server --transport zenoh`` and wait for it to say it is ready; with
+    ``camera``, then its camera node (the scene is needed: the camera renders it)."""
+
+    def __init__(
+        self,
+        scene: str | Path | None = None,
+        robot: str = "hsr",
+        endpoint: str | None = None,
+        camera: bool = False,
+        jpeg: bool = False,
+    ) -> None:
+        if camera and scene is None:
+            raise RlgpError("RobotProcess(camera=True) needs the scene the camera renders")
         self.endpoint = endpoint or free_endpoint()
+        self.camera: subprocess.Popen[str] | None = None
         cmd = [
             sys.executable,
             "-m",
@@ -43,12 +71,18 @@ class RobotProcess:
         if scene is not None:
             cmd += ["--scene", str(scene)]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        line = self.proc.stdout.readline() if self.proc.stdout else ""
-        if "ready" not in line:
-            err = self.proc.stderr.read() if self.proc.poll() is not None and self.proc.stderr else ""
+        try:
+            self.ready_line = _wait_ready(self.proc, "sim-robot")
+            if camera:
+                assert scene is not None
+                self.camera = subprocess.Popen(
+                    camera_command(robot, scene, self.endpoint, jpeg=jpeg),
+                    cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                )
+                _wait_ready(self.camera, "the camera node")
+        except BaseException:
             self.stop()
-            raise RlgpError(f"sim-robot did not start: {line.strip()} {err.strip()}")
-        self.ready_line = line.strip()
+            raise
 
     @property
     def pid(self) -> int:
@@ -62,13 +96,14 @@ class RobotProcess:
         os.kill(self.proc.pid, signal.SIGKILL)
 
     def stop(self, timeout: float = 10.0) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout)
+        for proc in (self.camera, self.proc):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(timeout)
 
     def __enter__(self) -> RobotProcess:
         return self

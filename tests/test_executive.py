@@ -371,7 +371,9 @@ def test_zenoh_a_pushed_object_triggers_a_replan_and_the_goal_is_reached(robot_p
     _, ep = robot_process
     scene = load_scene(SCENE)
     rec = Recorder(tmp_path / "push.mcap")
-    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S))
+    hal, objects = connect(
+        scene, RunOptions(backend="zenoh", endpoint=ep, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S, objects="mocap")
+    )
     try:
         time.sleep(0.5)
         ex = Executive(hal, scene, objects, recorder=rec)
@@ -398,7 +400,7 @@ def test_zenoh_killing_the_robot_mid_motion_faults_within_200ms(robot_process, t
     proc, ep = robot_process
     scene = load_scene(SCENE)
     rec = Recorder(tmp_path / "kill.mcap")
-    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
+    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep, objects="mocap"))
     killed_at: list[float] = []
     try:
         time.sleep(0.5)
@@ -432,7 +434,9 @@ def test_zenoh_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm
     lets no setpoint out after it, the robot holds, and the executive refuses to move until re-armed."""
     _, ep = robot_process
     scene = load_scene(SCENE)
-    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S))
+    hal, objects = connect(
+        scene, RunOptions(backend="zenoh", endpoint=ep, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S, objects="mocap")
+    )
     try:
         time.sleep(0.5)
         ex = Executive(hal, scene, objects)
@@ -467,7 +471,10 @@ def test_zenoh_pick_place_pr2_reaches_its_goal(tmp_path):
     rec = Recorder(tmp_path / "pr2.mcap")
     try:
         hal, objects = connect(
-            scene, RunOptions(backend="zenoh", endpoint=robot.endpoint, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S)
+            scene,
+            RunOptions(
+                backend="zenoh", endpoint=robot.endpoint, heartbeat_timeout_s=FUNCTIONAL_HEARTBEAT_S, objects="mocap"
+            ),
         )
         try:
             time.sleep(0.5)

@@ -44,7 +44,7 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
     reactions: list[float] = []
     kinds: list[str] = []
     failures: list[str] = []
-    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep))
+    hal, objects = connect(scene, RunOptions(backend="zenoh", endpoint=ep, objects="mocap"))
     try:
         objects.close()
         model = hal.model
@@ -104,7 +104,8 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
 
 def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50, seed: int = 0) -> dict:
     with RobotProcess(task_scene) as robot:
-        result, ex = run_task(load_scene(task_scene), RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed))
+        opts = RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed, objects="mocap")
+        result, ex = run_task(load_scene(task_scene), opts)
     errs = ex.actor.clock.period_err_ms
     reactions, kinds, failures = _fault_reactions(fault_scene, n_faults)
     by_kind = {k: [r for r, kk in zip(reactions, kinds, strict=True) if kk == k] for k in ("estop", "stall")}

@@ -1,9 +1,14 @@
 """``rlgp-exec run``: connect to a robot through a HAL backend, run one task with the executive, record it.
 
 Backends: ``sim`` (in-process PyBullet robot, stepped in lock-step; objects sensed from the simulation),
-``zenoh`` (a robot — or ``rlgp-exec sim-robot`` — over Zenoh; object poses from a mocap topic), ``can``
-(the HSR's CANopen drives; no object sensing on that bus: poses come from the scene file and the result
-says the goal was not verified).
+``zenoh`` (a robot — or ``rlgp-exec sim-robot --camera`` — over Zenoh; object poses from the robot's head
+camera by default, or a mocap topic), ``can`` (the HSR's CANopen drives; no object sensing on that bus:
+poses come from the scene file and the result says the goal was not verified).
+
+``RunOptions.objects`` chooses the object source: ``camera`` (zenoh: AprilTags in the head camera's
+images, :class:`~rlgp_exec.executive.camera_source.CameraObjects`), ``mocap`` (zenoh: ``ZenohMocap``;
+sim: the simulation's truth), ``file`` (the scene file's poses, sensing nothing), or None for the
+backend's default (sim: its truth, zenoh: camera, can: file).
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ from rlgp_exec.hal import make_backend
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.scene import Scene
 
-__all__ = ["RunOptions", "connect", "run_task"]
+__all__ = ["OBJECT_SOURCES", "RunOptions", "connect", "goal_objects", "object_source_name", "run_task"]
 
 log = logging.getLogger(__name__)
+OBJECT_SOURCES = ("camera", "mocap", "file")
+_DEFAULT_SOURCE = {"sim": "mocap", "zenoh": "camera", "can": "file"}
 
 
 @dataclass(frozen=True)
@@ -41,6 +48,28 @@ class RunOptions:
     connect_timeout_s: float = 10.0
     heartbeat_timeout_s: float = 0.15  # zenoh/can: no fresh state for this long -> FAULT (15 cycles at 100 Hz)
     seed: int = 0
+    objects: str | None = None  # one of OBJECT_SOURCES; None: the backend's default
+
+
+def object_source_name(opts: RunOptions) -> str:
+    """The object source ``opts`` asks for, checked against what its backend can sense."""
+    name = opts.objects or _DEFAULT_SOURCE.get(opts.backend, "file")
+    if name not in OBJECT_SOURCES:
+        raise RlgpError(f"--objects {name!r}: valid: {list(OBJECT_SOURCES)}")
+    if name == "camera" and opts.backend != "zenoh":
+        raise RlgpError(f"--objects camera reads the robot's camera over zenoh, not the {opts.backend} backend")
+    if name == "mocap" and opts.backend == "can":
+        raise RlgpError("--objects mocap: the can backend has no motion-capture stream; use zenoh or file")
+    return name
+
+
+def goal_objects(scene: Scene, goal: list[str] | None = None) -> list[str]:
+    """The objects of ``scene`` that ``goal`` (default: the scene's goal) names."""
+    import re
+
+    text = " ".join(goal) if goal is not None else " ".join(str(g) for g in scene.goal.literals)
+    words = set(re.findall(r"[^\s()]+", text))
+    return [o.name for o in scene.objects if o.name in words]
 
 
 def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSource]:
@@ -58,9 +87,12 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
             options["config_file"] = str(opts.zenoh_config)
     elif opts.backend == "can":
         options.update(interface=opts.can_interface, channel=opts.can_channel)
+    source = object_source_name(opts)
     hal = make_backend(opts.backend, scene.robot.name, **options)
     hal.configure()
     try:
+        if source == "file":
+            return hal, ScenePoses(scene)
         if opts.backend == "sim":
             return hal, SimMocap(hal)
         end = time.monotonic() + opts.connect_timeout_s
@@ -68,9 +100,11 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
             if time.monotonic() > end:
                 raise RlgpError(f"{opts.backend}: no robot heartbeat within {opts.connect_timeout_s} s")
             time.sleep(0.05)
-        if opts.backend == "zenoh":
-            return hal, ZenohMocap(hal.session, opts.namespace)  # type: ignore[attr-defined]
-        return hal, ScenePoses(scene)
+        if source == "camera":
+            from rlgp_exec.executive.camera_source import CameraObjects
+
+            return hal, CameraObjects(hal.session, hal.keys, hal.model, scene)  # type: ignore[attr-defined]
+        return hal, ZenohMocap(hal.session, opts.namespace)  # type: ignore[attr-defined]
     except BaseException:
         hal.shutdown()
         raise
@@ -83,7 +117,11 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         hal, objects = connect(scene, opts)
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
-        if opts.backend == "zenoh":  # give the mocap stream a moment to arrive
+        look_for = getattr(objects, "look_for", None)
+        if look_for is not None:  # the camera: point the head until the goal's objects are seen
+            found = look_for(goal_objects(scene, goal), hal)
+            log.info("sensing by camera: %s in %.2f s, %d head views", found.detail, found.elapsed_s, found.views)
+        elif isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
                 time.sleep(0.05)

@@ -66,8 +66,9 @@ def _ser(msg: Any, typename: str) -> bytes:
 
 
 def _stamp(t: float) -> Any:
-    sec = math.floor(t)
-    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=round((t - sec) * 1e9) % 1_000_000_000)
+    # rounded as a whole: t = 5.9999999997 is 6 s 0 ns (the fraction alone rounds to 1e9 ns: 5 s 0 ns)
+    sec, ns = divmod(round(t * 1e9), 1_000_000_000)
+    return _t("builtin_interfaces/msg/Time")(sec=int(sec), nanosec=int(ns))
 
 
 def _header(t: float, frame: str = "") -> Any:
@@ -139,11 +140,11 @@ def encode_string(value: str) -> bytes:
 
 
 # ---------------------------------------------------------------------- decoders
-def decode(payload: bytes, typename: str) -> Any:
-    """The message in ``payload``, or :class:`Rejected`. Never raises on bad bytes."""
+def decode(payload: bytes, typename: str, limit: int = MAX_PAYLOAD) -> Any:
+    """The message in ``payload`` (at most ``limit`` bytes), or :class:`Rejected`. Never raises on bad bytes."""
     n = len(payload)
-    if n > MAX_PAYLOAD:
-        return Rejected("too_large", f"{typename}: payload of {n} bytes > {MAX_PAYLOAD}")
+    if n > limit:
+        return Rejected("too_large", f"{typename}: payload of {n} bytes > {limit}")
     if n < 4 or payload[:4] not in _CDR_HEADERS:
         return Rejected("no_cdr_header", f"{typename}: no CDR encapsulation header in {payload[:4]!r} ({n} bytes)")
     try:

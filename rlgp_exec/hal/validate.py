@@ -10,14 +10,15 @@ from __future__ import annotations
 import logging
 import threading
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from rlgp_exec.hal.types import HalError, JointSetpoint
 from rlgp_exec.robot import RobotModel
 
-__all__ = ["MAX_GRASP_FORCE", "CommandLimits", "RejectCounter", "command_joints"]
+__all__ = ["MAX_GRASP_FORCE", "CommandLimits", "RejectCounter", "command_joints", "guarded"]
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,25 @@ class RejectCounter:
     def counts(self) -> dict[str, int]:
         with self._lock:
             return dict(self._counts)
+
+
+def guarded(
+    rejects: RejectCounter, topic: str, fn: Callable[[bytes], None], key: str | None = None
+) -> Callable[[Any], None]:
+    """A Zenoh subscriber callback handing ``fn`` the sample's bytes; an exception in it is counted under
+    "internal" instead of ending the subscriber. With ``key``, a sample on any other key expression (a
+    wildcard put that intersects it) is counted under "wildcard" and dropped."""
+
+    def cb(sample: Any) -> None:
+        if key is not None and str(sample.key_expr) != key:
+            rejects.reject("wildcard", f"{topic}: a sample on {sample.key_expr}, not exactly {key}")
+            return
+        try:
+            fn(sample.payload.to_bytes())
+        except Exception as e:  # a payload must never kill the subscriber
+            rejects.reject("internal", f"{topic}: {type(e).__name__}: {e}")
+
+    return cb
 
 
 class CommandLimits:
