@@ -342,13 +342,25 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
         try:
             time.sleep(1.5)
             assert "block_blue" not in objects.poses()  # not in view from the start
+            pan0 = hal.read_state().position("head_pan_joint")
+            pans: list[float] = []
+            write = hal.write_setpoint
+
+            def recording(q, dq=None, names=None):
+                if names is not None and "head_pan_joint" in names:
+                    pans.append(float(q[list(names).index("head_pan_joint")]))
+                return write(q, dq, names)
+
+            hal.write_setpoint = recording  # type: ignore[method-assign]
             found = objects.look_for(["block_blue"], hal, timeout_s=15.0)
+            hal.write_setpoint = write  # type: ignore[method-assign]
             assert found.ok and found.seen == {"block_blue"} and found.views >= 1, found
             T = objects.poses()["block_blue"]
             assert float(np.linalg.norm(T[:3, 3] - np.array(pose[:3]))) < 0.005
             assert hal.lifecycle is Lifecycle.INACTIVE
             st = hal.read_state()
-            assert st is not None and abs(st.position("head_pan_joint")) > 0.2  # it looked to the right
+            assert max(abs(p - pan0) for p in pans) > 0.2  # it looked to the right
+            assert st is not None and abs(st.position("head_pan_joint") - pan0) < 0.02  # and back where it was
             unseen = objects.look_for(["block_green", "tray_blue"], hal, timeout_s=5.0)
             assert not unseen.ok and "tray_blue" in unseen.missing  # not an object with a tag: said so
         finally:

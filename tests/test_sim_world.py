@@ -157,7 +157,7 @@ def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
 
     report = run_demo(tmp_path, seed=1, scene_name="sorting_hsr")  # (make demo: table clearing, ~6 min)
     assert report.ok, report.text()
-    assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "executive", "replay"]
+    assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "camera", "executive", "replay"]
     assert "goal holds in the sensed world" in report.text()
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
     rec = read_recording(tmp_path / "demo.mcap")

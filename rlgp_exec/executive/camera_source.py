@@ -450,6 +450,7 @@ class CameraObjects(ObjectSource):
 
         self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: wanted <= seen())
         activated = False
+        q_found = self._measured_q(hal)
         try:
             for name in sorted(wanted - seen()):
                 for point in candidate_points(self.scene, name)[:views_per_object]:
@@ -466,6 +467,11 @@ class CameraObjects(ObjectSource):
                     if not why:
                         views += 1
                         self._wait_frames(2, time.monotonic() + settle_s + 1.0, lambda n=name: n in seen(), settle_s)
+            if views and not detail and q_found is not None:  # the head back where it was: a known posture
+                q_now = self._measured_q(hal)
+                if q_now is not None:
+                    back = self._move_head(hal, q_now, q_found)
+                    detail = "" if back == "stale" else back
         finally:
             if activated and hal.lifecycle is Lifecycle.ACTIVE:
                 hal.deactivate()
@@ -519,21 +525,33 @@ class CameraObjects(ObjectSource):
                 time.sleep(0.01)
         return f"look_for: no fresh robot state within {HEARTBEAT_WAIT_S} s: not moving the head"
 
-    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str) -> str | None:
+    def _measured_q(self, hal: RobotInterface) -> FloatArray | None:
+        """The robot's configuration as measured now, None without fresh state."""
         st = hal.read_state()
         if st is None or not hal.heartbeat_ok():
-            return "stale"
+            return None
         q = self.model.home(st.base)
         for n in st.names:
             q[self.model.index(n)] = st.position(n)
+        return q
+
+    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str) -> str | None:
+        q = self._measured_q(hal)
+        if q is None:
+            return "stale"
         q_view = look_at_q(self.model, q, point)
         if pointing_error(self.model, q_view, point) > math.radians(5.0):
             return None
         if self._tag_side_px(name, q_view, point) < MIN_SIDE_MARGIN * self.perception.detector.min_side_px:
             return None
+        return self._move_head(hal, q, q_view)
+
+    def _move_head(self, hal: RobotInterface, q: FloatArray, q_target: FloatArray) -> str:
+        """Move the head joints from ``q`` to ``q_target`` (full configurations) on a cosine profile: '' when
+        there, else why it stopped ("stale": the heartbeat was lost)."""
         idx = list(self.model.group("head"))
         names = tuple(self.model.joint_names[i] for i in idx)
-        q0, q1 = q[idx], q_view[idx]
+        q0, q1 = q[idx], q_target[idx]
         vmax = 0.6 * self.model.limits.velocity[idx]
         T = max(0.2, float(np.max(np.abs(q1 - q0) * math.pi / (2 * vmax))))  # a cosine profile's peak speed
         period = 0.01

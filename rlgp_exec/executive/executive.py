@@ -241,6 +241,20 @@ class Executive:
             self.recorder.write("/scene", scene_to_dict(self.scene))
         return self.scene
 
+    def _look_for(self, goal: Goal) -> bool:
+        """A source that can look (the camera): point the head until every object the goal names is seen,
+        or say which were not. False when the source cannot look."""
+        names = sorted({a for lit in goal.literals for a in lit.args} & {o.name for o in self.scene.objects})
+        found = self.objects.look_for(names, self.hal)
+        if found is None:
+            return False
+        self._event("look_for", seen=sorted(found.seen), missing=sorted(found.missing), views=found.views,
+                    elapsed_s=found.elapsed_s, detail=found.detail)
+        (log.info if found.ok else log.warning)(
+            "sensing by camera: %s (%.2f s, %d head views)", found.detail, found.elapsed_s, found.views
+        )
+        return True
+
     def _goal(self, literals: Sequence[str] | None) -> Goal:
         if literals is None:
             return self.scene.goal
@@ -394,6 +408,8 @@ class Executive:
             return _End(TaskStatus.INVALID_GOAL, str(e), "invalid goal")
         self._event("goal", literals=[str(g) for g in goal.literals])
         self.sense(wait_s=self.robot_wait_s)
+        if self._look_for(goal):
+            self.sense()
         for attempt in range(self.max_replans + 1):
             if self.signals.estop.is_set():
                 self._latch_estop("e-stop requested")
@@ -454,6 +470,7 @@ class Executive:
             if outcome.status is ActStatus.DONE:
                 prog.stage = "verifying"
                 sm.to(S.SENSING, "verify")
+                self._look_for(goal)
                 self.sense()
                 unmet = self._unmet(goal)
                 if not self.objects.senses:

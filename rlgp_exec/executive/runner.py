@@ -117,11 +117,7 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         hal, objects = connect(scene, opts)
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
-        look_for = getattr(objects, "look_for", None)
-        if look_for is not None:  # the camera: point the head until the goal's objects are seen
-            found = look_for(goal_objects(scene, goal), hal)
-            log.info("sensing by camera: %s in %.2f s, %d head views", found.detail, found.elapsed_s, found.views)
-        elif isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
+        if isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
                 time.sleep(0.05)

@@ -18,6 +18,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -61,6 +62,11 @@ class ObjectSource(abc.ABC):
     @abc.abstractmethod
     def poses(self) -> dict[str, FloatArray]:
         """T_world_object (4, 4) of every object seen now (unseen objects are absent)."""
+
+    def look_for(self, names: Sequence[str], hal: Any) -> Any:
+        """Look (move the robot's head through ``hal``) until ``names`` are seen; what was found, or None
+        for a source that cannot look (mocap, the file)."""
+        return None
 
     def close(self) -> None:  # noqa: B027 - optional
         pass
