@@ -189,7 +189,7 @@ class CameraObjects(ObjectSource):
         worker: bool = True,
     ) -> None:
         # one OpenCV thread: with the robot and its renderer on the same cores, a parallel detection waits
-        # for its slowest thread to be scheduled again (measured 7 -> 80 ms a frame on a loaded machine)
+        # for its slowest thread to be scheduled again
         cv2.setNumThreads(1)
         self.model, self.scene, self.max_age_s = model, scene, max_age_s
         self.camera_frame = model.config.frames["camera"]
