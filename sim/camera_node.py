@@ -41,6 +41,7 @@ from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
 from rlgp_exec.scene import load_scene
 from sim.camera import hide_floor, render_camera
+from sim.logs import configure_logging
 from sim.world import build_world
 
 __all__ = ["CameraNode", "main"]
@@ -232,9 +233,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run until SIGINT/SIGTERM. Exit 0 on a clean stop, 2 on bad input."""
     args = _parser().parse_args(None if argv is None else list(argv))
-    if not logging.getLogger().handlers:
-        level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
-        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.verbose)
     os.nice(10)  # the robot's 100 Hz loop comes first when the cores are busy: rendering can wait
     if not 0 < args.rate <= 60:
         print(f"sim.camera_node: --rate must be in (0, 60] Hz, got {args.rate}", file=sys.stderr)

@@ -51,6 +51,7 @@ from rlgp_exec.hal.validate import CommandLimits, RejectCounter
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
+from sim.logs import configure_logging
 
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
@@ -433,9 +434,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the server until SIGINT/SIGTERM (or --duration). Exit 0 on a clean stop, 2 on bad input."""
     args = _parser().parse_args(None if argv is None else list(argv))
-    if not logging.getLogger().handlers:
-        level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
-        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.verbose)
     if args.transport == "can" and args.robot != "hsr":
         print(f"sim.robot_server: no CANopen node map for robot {args.robot!r}; valid: hsr", file=sys.stderr)
         return 2
