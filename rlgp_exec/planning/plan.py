@@ -43,6 +43,8 @@ class Plan:
     level3: Level3Stats | None = None  # R-LGP's full-path optimisation (None: not run)
     #: R-LGP: wall time [s] per stage of the geometric layer (``sequence.STAGES``), summed over the candidates
     stages: dict[str, float] = field(default_factory=dict)
+    #: R-LGP, on failure: the first ``doomed`` actions cannot be realised whatever follows them (0: not known)
+    doomed: int = 0
 
     @property
     def base_path_length_m(self) -> float:

@@ -19,6 +19,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,8 +32,9 @@ from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
 from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.grounding import ground_scene
-from rlgp_exec.planning.symbolic.heuristics import distance_cost, goal_lower_bound
-from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem
+from rlgp_exec.planning.symbolic.heuristics import goal_lower_bound
+from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
+from rlgp_exec.planning.symbolic.relevance import without_detours
 from rlgp_exec.planning.symbolic.search import best_first
 from rlgp_exec.planning.validate import goal_holds, validate_plan
 from rlgp_exec.reach import RGParams
@@ -46,6 +48,7 @@ PLANNERS = ("rlgp", "lgp")
 PER_ACTION = 1.0
 UNREACHABLE = 1e3
 TIME_BUDGET_S = 90.0  # [s] CPU time (``budget.cpu_clock``) a plan call may spend, every stage included
+SEARCH_WEIGHT = 1.25  # weighted A*: a first candidate within 1.25 times the cheapest, in far fewer expansions
 GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
@@ -89,35 +92,106 @@ def _site(
     return np.array([T[0, 3], T[1, 3], z + scene.object(a.args[1]).size[2]])
 
 
-def rg_cost(geo: SequenceGeometry):
-    """heuristicCost from the reachability graph (cached in its solution library)."""
-    start = {o.name: np.asarray(o.pose[:3], float) for o in geo.scene.objects}
-    surfaces: dict[str, tuple[FloatArray, tuple[float, float], float]] = {}
+def _after(geo: SequenceGeometry, a: GroundAction, openings: dict[str, float]) -> dict[str, float]:
+    """The drawer openings after action ``a`` (a new dict when a drawer moves, else ``openings``)."""
+    if a.name == "open_drawer":
+        return {**openings, a.args[1]: geo.drawers[a.args[1]].travel}
+    if a.name == "close_drawer":
+        return {**openings, a.args[1]: 0.0}
+    return openings
 
-    def after(a: GroundAction, openings: dict[str, float]) -> None:
-        if a.name == "open_drawer":
-            openings[a.args[1]] = geo.drawers[a.args[1]].travel
-        elif a.name == "close_drawer":
-            openings[a.args[1]] = 0.0
 
-    def cost(prefix: Sequence[GroundAction], action: GroundAction) -> float:
-        where = dict(start)
-        openings = {c: geo.scene.start.opening(c) for c in geo.drawers}
-        here = geo.hand_start
-        for a in prefix:
-            if a.name not in GEOMETRIC_ACTIONS:
-                return UNREACHABLE
-            after(a, openings)
-            here = _site(geo, a, where, openings, surfaces)
-            if a.name in ("place", "drop"):
-                where[a.args[1]] = here - np.array([0.0, 0.0, geo.scene.object(a.args[1]).size[2] / 2])
+def _planar_distance(x1: FloatArray, x2: FloatArray) -> float:
+    """The distance-only baseline's cost between two sites [m]: straight-line, in the plane."""
+    return float(math.hypot(x2[0] - x1[0], x2[1] - x1[1]))
+
+
+class _Where(NamedTuple):
+    """Where a plan prefix leaves things: the hand's site [m], objects' centres [m], drawer openings [m]."""
+
+    here: FloatArray  # (3,)
+    objects: dict[str, FloatArray]  # name -> (3,), world frame
+    openings: dict[str, float]
+
+
+class RGCost:
+    """heuristicCost as a :class:`PathCost`: an action costs ``PER_ACTION`` plus the reachability graph's
+    path cost from the hand's previous site to its own (``UNREACHABLE`` if the graph has none); objects and
+    drawers move with the plan. ``remaining`` adds to ``PER_ACTION`` times the actions the goal still needs
+    (``goal_lower_bound``) the graph cost of carrying each misplaced object from where it is to its goal's
+    site, and for each one the cheapest approach to it (from the hand, or from another misplaced object's
+    goal, where the hand is after putting that one down): a bound in the same units as the cost (blockers'
+    and drawers' sites left out), so the search orders by metres instead of exploring every ordering with
+    the same count of actions. ``estimate`` is
+    ``geo.heuristic_cost`` for R-LGP; the distance-only baseline passes the straight-line distance."""
+
+    def __init__(self, geo: SequenceGeometry, problem: GroundProblem, estimate=None) -> None:
+        self.geo = geo
+        self.scene = geo.scene
+        self.estimate = estimate or geo.heuristic_cost
+        self.count = goal_lower_bound(problem)
+        self.surfaces: dict[str, tuple[FloatArray, tuple[float, float], float]] = {}
+        self._costs: dict[bytes, float] = {}
+        movable = {n for n, t in problem.objects if t == "movable"}
+        self.goals = [(g, g[1], g[2]) for g in problem.goal if g[0] in ("on", "in")]
+        self.kind = {s: ("drop" if g[0] == "in" else "stack" if s in movable else "place") for g, _, s in self.goals}
+        self.arm = next((n for n, t in problem.objects if t == "manipulator"), "arm")
+
+    def _cost(self, x1: FloatArray, x2: FloatArray) -> float:
+        key = x1.tobytes() + x2.tobytes()
+        h = self._costs.get(key)
+        if h is None:
+            h = self.estimate(x1, x2)
+            h = self._costs[key] = h if math.isfinite(h) else UNREACHABLE
+        return h
+
+    def start(self) -> _Where:
+        scene = self.scene
+        return _Where(
+            np.asarray(self.geo.hand_start, float),
+            {o.name: np.asarray(o.pose[:3], float) for o in scene.objects},
+            {c: scene.start.opening(c) for c in self.geo.drawers},
+        )
+
+    def step(self, context: _Where, action: GroundAction) -> tuple[float, _Where]:
         if action.name not in GEOMETRIC_ACTIONS:
-            return UNREACHABLE
-        after(action, openings)
-        h = geo.heuristic_cost(here, _site(geo, action, where, openings, surfaces))
-        return PER_ACTION + (h if math.isfinite(h) else UNREACHABLE)
+            return UNREACHABLE, context
+        openings = _after(self.geo, action, context.openings)
+        there = _site(self.geo, action, context.objects, openings, self.surfaces)
+        objects = context.objects
+        if action.name in ("place", "drop", "stack"):
+            o = action.args[1]
+            objects = {**objects, o: there - np.array([0.0, 0.0, self.scene.object(o).size[2] / 2])}
+        return PER_ACTION + self._cost(context.here, there), _Where(there, objects, openings)
 
-    return cost
+    def _goal_site(self, o: str, s: str, context: _Where) -> FloatArray:
+        kind = self.kind[s]
+        if kind == "stack":  # on top of the support object, wherever the plan has left it
+            below = self.scene.object(s)
+            z = context.objects[s][2] + below.size[2] / 2 + self.scene.object(o).size[2]
+            return np.array([context.objects[s][0], context.objects[s][1], z])
+        openings = context.openings
+        if kind == "drop":
+            openings = {**openings, s: self.geo.drawers[s].travel}
+        return _site(self.geo, GroundAction(kind, (self.arm, o, s)), context.objects, openings, self.surfaces)
+
+    def remaining(self, state: SymbolicState, context: _Where) -> float:
+        held = {a[2] for a in state if a[0] == "holding"}
+        carry, loose = 0.0, []
+        ends = [context.here]  # where the hand can come from to each pick: here, or another object's goal
+        for g, o, s in self.goals:
+            if g in state:
+                continue
+            goal_site = self._goal_site(o, s, context)
+            if o in held:
+                carry += self._cost(context.here, goal_site)
+            else:
+                top = context.objects[o] + np.array([0.0, 0.0, self.scene.object(o).size[2] / 2])
+                carry += self._cost(top, goal_site)
+                loose.append((top, len(ends)))
+            ends.append(goal_site)
+        approach = sum(min(self._cost(e, top) for k, e in enumerate(ends) if k != own) for top, own in loose)
+        return PER_ACTION * self.count(state) + carry + approach
 
 
 def plan_scene(
@@ -170,9 +244,8 @@ def _candidates(
     t0: float, budget: Budget,
 ) -> Plan:
     """``plan_scene``'s loop over the symbolic search's candidates."""
-    scene = geo.scene
-    cost = rg_cost(geo) if planner == "rlgp" else distance_cost(scene)
-    search = best_first(problem, cost, max_expansions, heuristic=goal_lower_bound(problem))
+    model = RGCost(geo, problem, None if planner == "rlgp" else _planar_distance)
+    search = best_first(without_detours(problem), max_expansions=max_expansions, weight=SEARCH_WEIGHT, model=model)
     reasons: list[str] = []
 
     def failed(reason: str) -> Plan:
@@ -197,6 +270,8 @@ def _candidates(
                 if result.success:
                     return result
                 reasons.append(f"{cand}: {result.reason}")
+                if result.doomed:  # the next candidates must differ within the failing prefix
+                    search.forbid(cand.actions[: result.doomed])
                 if len(reasons) == 1:  # the first geometric failure: is the goal reachable at all?
                     with budget.at("reachability of the goal", f"candidate {k}"):
                         infeasible = unreachable_goal(geo, problem)

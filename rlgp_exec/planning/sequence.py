@@ -36,6 +36,7 @@ from rlgp_exec.planning.nlp.hand import (
     mesh_finger_spheres,
     other_arm_obstacles,
 )
+from rlgp_exec.planning.nlp.keyframe_chunks import JOINT_ACTIONS, ChunkedKeyframes
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, KeyframeResult, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats, Plan
@@ -119,6 +120,7 @@ class SequenceGeometry:
         self.level3, self.T = level3, T
         self.l3 = Level3Stats()  # totals over this object's candidates
         self._nlp_cache: dict = {}  # the keyframe NLP of the sequence under way (its tilts share it)
+        self._chunked = ChunkedKeyframes()  # a long sequence's, chunk by chunk
         self.stages = dict.fromkeys(STAGES, 0.0)  # [s] summed over this object's calls
         self.stages["setup"] = time.perf_counter() - t0
 
@@ -166,12 +168,15 @@ class SequenceGeometry:
         The active budget (``planning.budget``) is checked inside every stage: ``BudgetError`` once spent."""
         t0 = time.perf_counter() if t_start is None else t_start
         reasons: list[str] = []
+        doomed = []
         for tilt in (0.0, 0.6):
             result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
             if result.success:
                 return result
             reasons.append(f"[tilt <= {tilt} rad] {result.reason}")
-        return replace(result, reason=" / ".join(reasons))
+            doomed.append(result.doomed)
+        # a prefix fails whatever follows only if it does at every tilt
+        return replace(result, reason=" / ".join(reasons), doomed=max(doomed) if all(doomed) else 0)
 
     def _graph_seeds(self, x: FloatArray) -> list[FloatArray]:
         """Keyframe seeds for a hand target x: the graph's nearest nodes (collision-free, reaching near x)."""
@@ -320,7 +325,7 @@ class SequenceGeometry:
             return result(phases, None, reason)
 
         if not kf.ok:
-            return fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}")
+            return replace(fail(f"keyframes (tilt <= {tilt} rad): {kf.reason}"), doomed=kf.doomed)
         with self._stage("guided"):
             laid = self._lay_out(actions, kf)
         if isinstance(laid, _NoLayout):
@@ -343,10 +348,22 @@ class SequenceGeometry:
         return result(tuple(phases), validation, reason)
 
     def _keyframes(self, actions: list[Action], tilt: float) -> KeyframeResult:
+        """Level 2 for ``actions`` (chunk by chunk when long: ``nlp.keyframe_chunks``)."""
+        if len(actions) <= JOINT_ACTIONS:
+            return self._solve_keyframes(self.scene, self.q0, actions, tilt, self._nlp_cache)
+
+        def solve(scene: Scene, q_start: FloatArray, part: list[Action], cache: dict) -> KeyframeResult:
+            return self._solve_keyframes(scene, q_start, part, tilt, cache)
+
+        return self._chunked(solve, self.scene, self.q0, actions)
+
+    def _solve_keyframes(
+        self, scene: Scene, q_start: FloatArray, actions: list[Action], tilt: float, cache: dict
+    ) -> KeyframeResult:
         return solve_keyframes(
             self.model,
-            self.scene,
-            self.q0,
+            scene,
+            q_start,
             actions,
             seed=self.seed,
             in_collision=self._in_collision,
@@ -357,7 +374,7 @@ class SequenceGeometry:
             body=self.body,
             lift_room=APPROACH,
             seeds=self._graph_seeds,
-            cache=self._nlp_cache,
+            cache=cache,
             mesh_hand=self.mesh_hand,
             inner=self.inner,
         )

@@ -1,9 +1,9 @@
 """Generated scenes: sorting N blocks onto two trays, for ``bench scaling`` and for tests.
 
 ``sorting_scene(robot, n, seed)`` is the R-LGP paper's sorting task grown to ``n`` blocks: a middle
-table (PR2: 1.2 x 1.6 m; HSR: 1.2 x 0.9 m, every block within the arm's reach from some side), two
+table (PR2: 1.2 x 1.6 m; HSR: 1.0 x 0.6 m, every block within the arm's reach from a long side), two
 side tables ~2 m (PR2) / ~1.5 m (HSR) away carrying a blue and a green tray, blocks alternately blue
-and green, placed by :func:`randomize` with ``seed``. Same arguments, same scene.
+and green, placed by :func:`randomize` with ``seed``, ``GAP`` apart. Same arguments, same scene.
 """
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from rlgp_exec.scene.loader import scene_from_dict
 from rlgp_exec.scene.randomize import randomize
 from rlgp_exec.scene.types import Scene
 
-__all__ = ["MAX_SORTING_OBJECTS", "ROBOTS", "sorting_scene"]
+__all__ = ["GAP", "MAX_SORTING_OBJECTS", "ROBOTS", "sorting_scene"]
 
 ROBOTS = ("pr2", "hsr")
 MAX_SORTING_OBJECTS = 12  # two 0.3 m trays hold 6 blocks of 5 cm each with room to place them
+GAP = 0.03  # [m] between blocks: room for the fingers on every side (tight gaps are the clutter scenes')
 
 
 def _layout(robot: str) -> dict[str, Any]:
@@ -32,18 +33,18 @@ def _layout(robot: str) -> dict[str, Any]:
         }
     return {
         "base": [0.0, -1.0, 1.5708], "joints": {},
-        "mid": ([1.2, 0.9, 0.45], [0.0, 0.0, 0.225, 0.0]),
+        "mid": ([1.0, 0.6, 0.45], [0.0, 0.0, 0.225, 0.0]),
         "sides": ([0.5, 0.5, 0.45], [1.5, -0.7], [-1.5, 0.7]), "tray": [0.25, 0.25],
-        "block": [0.05, 0.05, 0.08], "x": [-0.5, 0.5], "y": [-0.35, 0.35],
+        "block": [0.05, 0.05, 0.08], "x": [-0.42, 0.42], "y": [-0.22, 0.22],
     }
 
 
 def sorting_scene(robot: str, n: int, seed: int = 0) -> Scene:
     """Sorting ``n`` blocks (``n`` in 1..MAX_SORTING_OBJECTS) onto two trays, layout drawn with ``seed``."""
     if robot not in ROBOTS:
-        raise SceneError(f"sorting_scene: unknown robot {robot!r}; valid: {list(ROBOTS)}")
+        raise SceneError("<sorting_scene>", "robot", f"unknown robot {robot!r}; valid: {list(ROBOTS)}")
     if not 1 <= n <= MAX_SORTING_OBJECTS:
-        raise SceneError(f"sorting_scene: n = {n} blocks; valid: 1..{MAX_SORTING_OBJECTS} (two trays)")
+        raise SceneError("<sorting_scene>", "n", f"{n} blocks; valid: 1..{MAX_SORTING_OBJECTS} (two trays)")
     L = _layout(robot)
     mid_size, mid_pose = L["mid"]
     side_size, blue_xy, green_xy = L["sides"]
@@ -77,4 +78,4 @@ def sorting_scene(robot: str, n: int, seed: int = 0) -> Scene:
         "object": objects,
         "goal": {"literals": goal},
     }
-    return randomize(scene_from_dict(data, f"<sorting_scene {robot} n={n} seed={seed}>"), seed)
+    return randomize(scene_from_dict(data, f"<sorting_scene {robot} n={n} seed={seed}>"), seed, GAP)

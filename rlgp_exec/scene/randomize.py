@@ -23,11 +23,12 @@ def _inflated(b: Box, margin: float) -> Box:
     return Box(b.name, (b.size[0] + 2 * margin, b.size[1] + 2 * margin, b.size[2]), b.T, b.color)
 
 
-def randomize(scene: Scene, seed: int) -> Scene:
+def randomize(scene: Scene, seed: int, clearance: float = CLEARANCE) -> Scene:
     """A copy of ``scene`` with every object that has a ``random`` table placed anew.
 
     Positions are drawn in the support's frame, rejection-sampled until the object's footprint lies on
-    its support and clears fixtures and the other objects (the ones drawn before it included).
+    its support and clears fixtures and the other objects (the ones drawn before it included) by
+    ``clearance`` [m].
     Same seed, same scene.
     """
     rng = np.random.default_rng(seed)
@@ -50,7 +51,7 @@ def randomize(scene: Scene, seed: int) -> Scene:
             if not surf.contains(T[:2, 3], margin=r):
                 continue
             cand = replace(o, pose=pose_of(T))
-            box = _inflated(object_box(cand), CLEARANCE)
+            box = _inflated(object_box(cand), clearance)
             others = [*fixed.values(), *(object_box(p) for p in placed.values())]
             if any(boxes_overlap(box, s) for s in statics) or any(boxes_overlap(box, b) for b in others):
                 continue

@@ -105,6 +105,7 @@ class KeyframeResult:
     violation: float
     solve_ms: float
     reason: str
+    doomed: int = 0  # on failure: the first ``doomed`` actions fail whatever follows (0: not known)
 
 
 def _rigid_inv(T: ca.SX) -> ca.SX:

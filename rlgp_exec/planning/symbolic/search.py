@@ -7,6 +7,12 @@ plugs in its reachability-graph cost; :func:`unit_cost` and the distance-only ba
 candidate. A state may be reached on at most ``max_visits`` different paths (k-best search), paths
 never revisit a state, and goal nodes are not expanded. With a consistent heuristic, ``weight=1``
 and a state-independent cost the first plan is optimal.
+
+A path-dependent cost whose heuristic needs the path too (where the hand is, where the objects moved)
+is a :class:`PathCost`: each node carries the model's context, so a step costs O(1) in the plan's
+length, and ``remaining(state, context)`` is the heuristic. ``weight > 1`` is weighted A*: the first
+plan costs at most ``weight`` times the optimum when ``remaining`` is admissible, found in far fewer
+expansions.
 """
 
 from __future__ import annotations
@@ -16,12 +22,15 @@ import itertools
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 from rlgp_exec.planning import budget
 from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 
-__all__ = ["BestFirst", "CandidatePlan", "CostFn", "Heuristic", "SearchStats", "best_first", "unit_cost"]
+__all__ = [
+    "BestFirst", "CandidatePlan", "CostFn", "Heuristic", "PathCost", "SearchStats", "best_first", "unit_cost",
+]
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +38,22 @@ log = logging.getLogger(__name__)
 CostFn = Callable[[Sequence[GroundAction], GroundAction], float]
 #: estimated remaining cost of a state (>= 0)
 Heuristic = Callable[[SymbolicState], float]
+
+
+class PathCost(Protocol):
+    """A path-dependent cost with its heuristic; the context is the model's own (immutable) value."""
+
+    def start(self) -> Any:
+        """The context of the empty plan."""
+        ...
+
+    def step(self, context: Any, action: GroundAction) -> tuple[float, Any]:
+        """The cost (>= 0) of appending ``action`` to the plan that ``context`` describes, and the new context."""
+        ...
+
+    def remaining(self, state: SymbolicState, context: Any) -> float:
+        """An estimate (>= 0) of the cost still needed from ``state`` reached as ``context`` says."""
+        ...
 
 
 def unit_cost(actions: Sequence[GroundAction], action: GroundAction) -> float:
@@ -56,13 +81,16 @@ class CandidatePlan:
 
 
 class _Node:
-    __slots__ = ("action", "depth", "g", "parent", "state")
+    __slots__ = ("action", "context", "depth", "g", "parent", "state")
 
-    def __init__(self, state: SymbolicState, action: GroundAction | None, parent: _Node | None, g: float) -> None:
+    def __init__(
+        self, state: SymbolicState, action: GroundAction | None, parent: _Node | None, g: float, context: Any = None,
+    ) -> None:
         self.state = state
         self.action = action
         self.parent = parent
         self.g = g
+        self.context = context
         self.depth: int = 0 if parent is None else parent.depth + 1
 
     def actions(self) -> list[GroundAction]:
@@ -102,6 +130,7 @@ class BestFirst(Iterator[CandidatePlan]):
         weight: float = 1.0,
         max_visits: int = 4,
         prune: Callable[[Sequence[GroundAction], SymbolicState], bool] | None = None,
+        model: PathCost | None = None,
     ) -> None:
         if max_expansions < 1 or max_visits < 1 or weight < 0:
             raise SymbolicError(
@@ -115,25 +144,45 @@ class BestFirst(Iterator[CandidatePlan]):
         self.weight = weight
         self.max_visits = max_visits
         self.prune = prune
+        self.model = model
         self.stats = SearchStats()
         self._visits: dict[SymbolicState, int] = {}
         self._tie = itertools.count()
         self._frontier: list[tuple[float, float, int, _Node]] = []
-        self._push(_Node(problem.init, None, None, 0.0))
+        self._forbidden: set[tuple[GroundAction, ...]] = set()
+        self._forbidden_lengths: set[int] = set()
+        self._push(_Node(problem.init, None, None, 0.0, model.start() if model is not None else None))
 
     def _push(self, node: _Node) -> None:
-        h = self.heuristic(node.state) if self.heuristic is not None else 0.0
+        if self.model is not None:
+            h = self.model.remaining(node.state, node.context)
+        else:
+            h = self.heuristic(node.state) if self.heuristic is not None else 0.0
         heapq.heappush(self._frontier, (node.g + self.weight * h, h, next(self._tie), node))
 
     def __iter__(self) -> BestFirst:
         return self
+
+    def forbid(self, prefix: Sequence[GroundAction]) -> None:
+        """Drop every further plan that begins with ``prefix`` (one the geometry cannot realise, whatever
+        follows): the frontier's nodes below it are skipped when they come up."""
+        if prefix:
+            self._forbidden.add(tuple(prefix))
+            self._forbidden_lengths.add(len(prefix))
+
+    def _is_forbidden(self, node: _Node) -> bool:
+        lengths = [n for n in self._forbidden_lengths if n <= node.depth]
+        if not lengths:
+            return False
+        actions = tuple(node.actions())
+        return any(actions[:n] in self._forbidden for n in lengths)
 
     def __next__(self) -> CandidatePlan:
         problem = self.problem
         while self._frontier:
             _, _, _, node = heapq.heappop(self._frontier)
             seen = self._visits.get(node.state, 0)
-            if seen >= self.max_visits:
+            if seen >= self.max_visits or (self._forbidden and self._is_forbidden(node)):
                 continue
             self._visits[node.state] = seen + 1
             if problem.is_goal(node.state):
@@ -154,15 +203,21 @@ class BestFirst(Iterator[CandidatePlan]):
             for action, succ in problem.successors(node.state):
                 if self._visits.get(succ, 0) >= self.max_visits or node.on_path(succ):
                     continue
-                if prefix is None:
-                    prefix = node.actions()
-                if self.prune is not None and self.prune([*prefix, action], succ):
-                    continue
-                step = self.cost_fn(prefix, action)
+                if self.prune is not None or self.model is None:
+                    if prefix is None:
+                        prefix = node.actions()
+                    if self.prune is not None and self.prune([*prefix, action], succ):
+                        continue
+                context = None
+                if self.model is not None:
+                    step, context = self.model.step(node.context, action)
+                else:
+                    assert prefix is not None
+                    step = self.cost_fn(prefix, action)
                 if step < 0:
-                    raise SymbolicError(f"best_first: cost_fn returned {step} < 0 for {action}")
+                    raise SymbolicError(f"best_first: cost returned {step} < 0 for {action}")
                 self.stats.generated += 1
-                self._push(_Node(succ, action, node, node.g + step))
+                self._push(_Node(succ, action, node, node.g + step, context))
         self.stats.exhausted = True
         raise StopIteration
 
@@ -176,12 +231,13 @@ def best_first(
     weight: float = 1.0,
     max_visits: int = 4,
     prune: Callable[[Sequence[GroundAction], SymbolicState], bool] | None = None,
+    model: PathCost | None = None,
 ) -> BestFirst:
     """Candidate plans of ``problem`` in order of cost (see the module docstring).
 
     ``heuristic`` guides the search (e.g. ``heuristics.goal_lower_bound(problem)``, admissible);
     ``prune(prefix, state)`` drops a node (e.g. a forbidden partial plan, ``reformulate``); the
     iterator stops when no plan is left (``stats.exhausted``) or at ``max_expansions``
-    (``stats.budget_hit``).
+    (``stats.budget_hit``). ``model`` (a :class:`PathCost`) replaces ``cost_fn`` and ``heuristic``.
     """
-    return BestFirst(problem, cost_fn, max_expansions, heuristic, weight, max_visits, prune)
+    return BestFirst(problem, cost_fn, max_expansions, heuristic, weight, max_visits, prune, model)
