@@ -33,7 +33,7 @@ def test_chunks_cut_only_where_the_hand_is_empty(names, size):
 def _fake_solver(calls, fail_at=None):
     """A keyframe solver that moves each picked object 0.1 m in x and records what it was given."""
 
-    def solve(scene, q_start, part, cache):
+    def solve(scene, q_start, part, tilt, cache):
         calls.append((q_start.copy(), {o.name: o.pose for o in scene.objects}, [str(a) for a in part]))
         poses = {o.name: pose_matrix(o.pose) for o in scene.objects}
         frames, after = [], []

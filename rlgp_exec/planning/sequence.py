@@ -58,6 +58,10 @@ STAGES = ("setup", "keyframes", "guided", "level3", "replay")
 _STAGE_NAMES = {"guided": "guided paths", "level3": "level 3"}  # in a budget's reason
 
 
+#: [rad] the grasps' largest lean from vertical, tried in turn (a lean reaches further across a table)
+TILTS = (0.0, 0.6)
+
+
 class _NoLayout(NamedTuple):
     """Why a candidate's phases could not be laid out, and those laid out before."""
 
@@ -169,7 +173,7 @@ class SequenceGeometry:
         t0 = time.perf_counter() if t_start is None else t_start
         reasons: list[str] = []
         doomed = []
-        for tilt in (0.0, 0.6):
+        for tilt in TILTS:
             result = self._attempt(actions, planner, nodes_expanded, t0, tilt)
             if result.success:
                 return result
@@ -352,10 +356,8 @@ class SequenceGeometry:
         if len(actions) <= JOINT_ACTIONS:
             return self._solve_keyframes(self.scene, self.q0, actions, tilt, self._nlp_cache)
 
-        def solve(scene: Scene, q_start: FloatArray, part: list[Action], cache: dict) -> KeyframeResult:
-            return self._solve_keyframes(scene, q_start, part, tilt, cache)
-
-        return self._chunked(solve, self.scene, self.q0, actions)
+        tilts = [t for t in TILTS if t >= tilt]
+        return self._chunked(self._solve_keyframes, self.scene, self.q0, actions, tilts)
 
     def _solve_keyframes(
         self, scene: Scene, q_start: FloatArray, actions: list[Action], tilt: float, cache: dict

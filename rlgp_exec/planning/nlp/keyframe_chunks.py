@@ -31,8 +31,9 @@ CHUNK_ACTIONS = 2  # longer ones a pick and its put-down at a time: a failing pa
 HAND_EMPTY_AFTER = ("place", "stack", "drop", "open_drawer", "close_drawer")
 _CACHES = 8  # chunk NLPs kept for a retry from the same start (another tilt)
 
-#: ``solve(scene, q_start, actions, cache)``: one keyframe NLP (``solve_keyframes`` with the caller's options)
-ChunkSolver = Callable[[Scene, FloatArray, list[Action], dict], KeyframeResult]
+#: ``solve(scene, q_start, actions, max_tilt, cache)``: one keyframe NLP (``solve_keyframes`` with the caller's
+#: options)
+ChunkSolver = Callable[[Scene, FloatArray, list[Action], float, dict], KeyframeResult]
 
 
 def chunks(actions: Sequence[Action], size: int = CHUNK_ACTIONS) -> list[list[Action]]:
@@ -72,13 +73,21 @@ class ChunkedKeyframes:
             self._caches.popitem(last=False)
         return cache
 
-    def __call__(self, solve: ChunkSolver, scene: Scene, q_start: FloatArray, actions: list[Action]) -> KeyframeResult:
-        """Every chunk of ``actions`` by ``solve``, in order; the first failing chunk's result ends it."""
+    def __call__(
+        self, solve: ChunkSolver, scene: Scene, q_start: FloatArray, actions: list[Action],
+        tilts: Sequence[float] = (0.0,),
+    ) -> KeyframeResult:
+        """Every chunk of ``actions`` by ``solve``, in order, each at the first of ``tilts`` (grasps' largest
+        lean [rad]) that solves it; the first chunk that no tilt solves ends it."""
         parts = chunks(actions, self.size)
         results: list[KeyframeResult] = []
         done = 0
         for k, part in enumerate(parts):
-            r = solve(scene, q_start, part, self._cache(k, scene, q_start, part))
+            cache = self._cache(k, scene, q_start, part)
+            for tilt in tilts:  # a chunk leans its grasps only if it must
+                r = solve(scene, q_start, part, tilt, cache)
+                if r.ok:
+                    break
             results.append(r)
             if not r.ok:
                 if len(parts) > 1:  # the chunks before were solved from the same start: this prefix is doomed
