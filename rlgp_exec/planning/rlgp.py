@@ -1,11 +1,15 @@
 """R-LGP (Algorithm 1): best-first symbolic search guided by the reachability graph's heuristic cost,
 then keyframe optimisation and guided paths for each candidate, replanning on geometric failure.
 
-``heuristicCost``: the cost of appending an action is the reachability graph's path cost h from the
-hand's previous site to the action's site (object top for a pick; the target's centre, one object
-height up, for a place), plus a constant per action; a site the graph cannot reach costs
-``UNREACHABLE`` (the sequence is pushed to the back, not dropped). The baseline ("lgp", our stand-in
-for RHH-LGP) uses the planar distance between sites instead, from the same search.
+``heuristicCost`` (:class:`RGCost`): the cost of appending an action is the reachability graph's path
+cost from the hand's previous site to the action's site (object top for a pick; the target's centre, one
+object height up, for a place), plus a constant per action; a site the graph cannot reach costs
+``UNREACHABLE`` (the sequence is pushed to the back, not dropped). The search is weighted A* with a
+heuristic in the same units (the actions still needed, each misplaced object's carry to its goal and its
+cheapest approach), over the problem without detours (``symbolic.relevance``), so it grows with the
+number of objects instead of their orderings. A candidate whose keyframes fail in a leading chunk
+(``nlp.keyframe_chunks``) forbids that prefix to the candidates after it. The baseline ("lgp", our
+stand-in for RHH-LGP) uses the planar distance between sites instead, from the same search.
 
 Geometric layers available here: pick, place (on regions and fixtures), and the drawer actions
 take_knob, open_drawer, close_drawer, drop (their site is the knob, or the open drawer's interior).

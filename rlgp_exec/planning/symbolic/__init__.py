@@ -3,7 +3,9 @@
 * ``domains/mobile_manipulation.pddl`` — the domain, the single definition (parsed by ``pddl``);
 * ``problem`` — a Scene -> typed objects, initial state and goal (``problem_from_scene``);
 * ``grounding`` / ``model`` — STRIPS operators, ``successors``, ``is_goal``, ``simulate``;
-* ``search`` / ``heuristics`` — ``best_first`` with a pluggable cost, yielding candidate plans;
+* ``search`` / ``heuristics`` — ``best_first`` with a pluggable cost (or a path-dependent ``PathCost``),
+  yielding candidate plans;
+* ``relevance`` — ``without_detours``: operators that only take an object off its goal surface, removed;
 * ``downward`` — Fast Downward in a subprocess, failures as ``FDStatus``;
 * ``reformulate`` — GNPP: forbid learnt infeasible partial-state sequences (both planners).
 """
@@ -42,7 +44,8 @@ from rlgp_exec.planning.symbolic.reformulate import (
     reformulate,
     violates,
 )
-from rlgp_exec.planning.symbolic.search import BestFirst, CandidatePlan, SearchStats, best_first, unit_cost
+from rlgp_exec.planning.symbolic.relevance import without_detours
+from rlgp_exec.planning.symbolic.search import BestFirst, CandidatePlan, PathCost, SearchStats, best_first, unit_cost
 
 __all__ = [
     "DOMAINS",
@@ -63,6 +66,7 @@ __all__ = [
     "GroundProblem",
     "Operator",
     "PartialState",
+    "PathCost",
     "ProblemSpec",
     "Reformulation",
     "SearchStats",
@@ -89,4 +93,5 @@ __all__ = [
     "solve_spec",
     "unit_cost",
     "violates",
+    "without_detours",
 ]
