@@ -55,6 +55,7 @@ from rlgp_exec.planning.symbolic import (
     ground_scene,
     reformulate,
     solve_ground,
+    without_detours,
 )
 from rlgp_exec.planning.validate import validate_with_fallbacks
 from rlgp_exec.robot import load_robot
@@ -189,7 +190,7 @@ def _plan(
         db = SubgraphDB() if memory is None else memory.subgraph_db(scene, fixed)
         db.bind(lib.call_context())
     mobile = lib.arms if lib.mobile else ()
-    task = add_flags(add_moves(ground_scene(scene, manipulators=list(lib.arms)), mobile))
+    task = add_flags(add_moves(without_detours(ground_scene(scene, manipulators=list(lib.arms))), mobile))
     wide = lib.too_wide()
     if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
         ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
