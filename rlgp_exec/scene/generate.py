@@ -41,9 +41,9 @@ def _layout(robot: str) -> dict[str, Any]:
 def sorting_scene(robot: str, n: int, seed: int = 0) -> Scene:
     """Sorting ``n`` blocks (``n`` in 1..MAX_SORTING_OBJECTS) onto two trays, layout drawn with ``seed``."""
     if robot not in ROBOTS:
-        raise SceneError(f"sorting_scene: unknown robot {robot!r}; valid: {list(ROBOTS)}")
+        raise SceneError("sorting_scene", "robot", f"unknown robot {robot!r}; valid: {list(ROBOTS)}")
     if not 1 <= n <= MAX_SORTING_OBJECTS:
-        raise SceneError(f"sorting_scene: n = {n} blocks; valid: 1..{MAX_SORTING_OBJECTS} (two trays)")
+        raise SceneError("sorting_scene", "n", f"{n} blocks; valid: 1..{MAX_SORTING_OBJECTS} (two trays)")
     L = _layout(robot)
     mid_size, mid_pose = L["mid"]
     side_size, blue_xy, green_xy = L["sides"]
