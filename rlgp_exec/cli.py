@@ -12,9 +12,12 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rlgp_exec.errors import RlgpError
+
+if TYPE_CHECKING:
+    from rlgp_exec.planning.limits import PlanLimits
 
 __all__ = ["main"]
 
@@ -47,7 +50,7 @@ def _show_progress(on: bool) -> None:
         lg.propagate = False
 
 
-def _limits(args: argparse.Namespace):
+def _limits(args: argparse.Namespace) -> PlanLimits:
     """``--time-budget``/``--max-expansions`` as the planners' limits (bad values: RlgpError, exit 2)."""
     from rlgp_exec.planning.limits import PlanLimits
 
