@@ -78,3 +78,15 @@ def test_the_blocker_is_moved_before_the_target_it_boxes_in():
     assert p.success, p.reason
     names = [str(a) for a in p.actions]
     assert names[0] == "(pick blocker)" and names.index("(pick blocker)") < names.index("(pick bar)"), names
+
+
+def test_a_run_still_planning_at_the_wall_cap_is_killed_and_recorded_failed(monkeypatch):
+    """The planners' budgets are CPU time; a child stuck in a call that spends none is still ended."""
+    import time
+
+    from rlgp_exec.planning import bench
+
+    monkeypatch.setattr(bench, "run_job", lambda *_: time.sleep(60))  # in the child: no CPU spent
+    record, xy = bench.run_isolated("unused.toml", "rlgp", 4, wall_timeout_s=2.0)
+    assert not record["success"] and record["seed"] == 4 and xy == []
+    assert record["reason"] == "timeout: still planning after 2 s wall"
