@@ -12,13 +12,50 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rlgp_exec.errors import RlgpError
+
+if TYPE_CHECKING:
+    from rlgp_exec.planning.limits import PlanLimits
 
 __all__ = ["main"]
 
 log = logging.getLogger("rlgp_exec")
+PROGRESS_LOGGERS = ("rlgp_exec.planning.rlgp", "rlgp_exec.planning.gnpp.planner")  # candidates, iterations
+
+
+_progress: list[logging.Handler] = []  # the handler _show_progress attached, for the next main() to replace
+
+
+def _show_progress(on: bool) -> None:
+    """What long planning is doing (R-LGP's candidates, GNPP's iterations) on stderr, one line each:
+    the planners' INFO lines, without the root handler's copy. stdout stays the command's own."""
+    for name in PROGRESS_LOGGERS:
+        lg = logging.getLogger(name)
+        for h in _progress:
+            lg.removeHandler(h)
+        lg.propagate = True
+        lg.setLevel(logging.NOTSET)
+    _progress.clear()
+    if not on:
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("  .. %(message)s"))
+    _progress.append(handler)
+    for name in PROGRESS_LOGGERS:
+        lg = logging.getLogger(name)
+        lg.addHandler(handler)
+        lg.setLevel(min(logging.getLogger().getEffectiveLevel(), logging.INFO))
+        lg.propagate = False
+
+
+def _limits(args: argparse.Namespace) -> PlanLimits:
+    """``--time-budget``/``--max-expansions`` as the planners' limits (bad values: RlgpError, exit 2)."""
+    from rlgp_exec.planning.limits import PlanLimits
+
+    return PlanLimits(args.time_budget, args.max_expansions)
+
 
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
@@ -73,17 +110,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         task_scene = Path(args.scene_file) if args.scene_file else scene_path("sorting_hsr")
         result = run_executive_bench(task_scene, task_scene, n_faults=args.faults, seed=args.seed or 0)
+    elif task == "scaling":
+        return _bench_scaling(args)
     elif Path(task).suffix == ".toml":
         from rlgp_exec.planning.bench import run_planner_bench
 
         planners = (args.planners or "rlgp,lgp").split(",")
         result = run_planner_bench(
-            task, planners, args.seeds, workers=args.workers, cluster=args.cluster, plot=args.plot
+            task, planners, args.seeds or 20, workers=args.workers, cluster=args.cluster, plot=args.plot,
+            limits=_limits(args),
         )
     else:
         print(
             f"rlgp-exec bench {task!r}: not a benchmark; valid: timing, perception, camera, hal, executive, "
-            "reachability SCENE, "
+            "reachability SCENE, scaling, "
             "or a scene file (planners side by side: --planners rlgp,lgp --seeds N)",
             file=sys.stderr,
         )
@@ -95,6 +135,32 @@ def cmd_bench(args: argparse.Namespace) -> int:
                 print(f"{k}.{k2}: {v2}")
         else:
             print(f"{k:40s} {v}")
+    return 0
+
+
+def _bench_scaling(args: argparse.Namespace) -> int:
+    from rlgp_exec.planning.scaling_bench import parse_counts, run_scaling_bench
+
+    def progress(rec: dict, done: int, total: int) -> None:
+        spent = rec["cpu_s"] if rec["cpu_s"] is not None else rec["wall_s"]
+        why = "" if rec["success"] else rec["reason"][:100]
+        print(f"  [{done:3d}/{total}] {rec['robot']} N={rec['N']:2d} seed {rec['seed']:2d} {rec['planner']:5s} "
+              f"{'ok  ' if rec['success'] else 'FAIL'} {spent:7.2f} s CPU {rec['wall_s']:7.2f} s wall {why}",
+              file=sys.stderr, flush=True)
+
+    result = run_scaling_bench(
+        robots=args.robots.split(","), counts=parse_counts(args.n), seeds=args.seeds or 10,
+        planners=(args.planners or "rlgp,gnpp").split(","), limits=_limits(args), plot=args.plot, on_run=progress,
+    )
+    _write_json(args.json, result)
+    print(f"{'planner':8s} {'N':>3s} {'success':>8s} {'median CPU s (ok)':>18s} {'median CPU s (all)':>19s}")
+    for p, by_n in result["summary"].items():
+        for n, cell in by_n.items():
+            ok_t, all_t = cell["time_s_median"], cell["time_s_median_all"]
+            print(f"{p:8s} {n:>3s} {cell['successes']:3d}/{cell['runs']:<4d} "
+                  f"{'-' if ok_t is None else f'{ok_t:.2f}':>18s} {'-' if all_t is None else f'{all_t:.2f}':>19s}")
+    if args.plot:
+        print(f"plot: {result['plot']}")
     return 0
 
 
@@ -134,12 +200,13 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
 def cmd_plan(args: argparse.Namespace) -> int:
     from rlgp_exec.scene import load_scene, randomize
 
+    _limits(args)  # bad limits are refused before the scene loads
     scene = load_scene(args.scene)  # before the planners load: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
     from rlgp_exec.planning.registry import plan as run_planner
 
-    plan = run_planner(scene, args.planner, seed=args.seed or 0)
+    plan = run_planner(scene, args.planner, seed=args.seed or 0, limits=_limits(args))
     summary = plan.summary()
     print(
         f"{scene.name}: {args.planner} {'found a valid plan' if plan.success else 'failed'} in "
@@ -169,6 +236,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.runner import RunOptions, run_task
     from rlgp_exec.scene import load_scene
 
+    _limits(args)  # bad limits are refused before the scene loads
     scene = load_scene(args.scene)
     if args.perceive:
         if args.backend != "sim":
@@ -188,6 +256,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         zenoh_config=_zenoh_config(args),
         seed=args.seed,
         objects=args.objects,
+        limits=_limits(args),
     )
     result, _ = run_task(scene, opts, args.goal)
     print(f"{scene.name}: {result.status.value}: {result.detail}")
@@ -234,6 +303,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
+    limits = _limits(args)
     scene = load_scene(args.scene)
     if scene.robot.name != args.robot:
         raise RlgpError(f"--scene {args.scene} is for robot {scene.robot.name!r}, not --robot {args.robot!r}")
@@ -247,6 +317,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             namespace=args.namespace,
             zenoh_config=config if args.backend == "zenoh" else None,
             objects=args.objects,
+            limits=limits,
         ),
         DaemonOptions(
             args.listen or (None if config else DEFAULT_LISTEN),
@@ -467,9 +538,24 @@ def _zenoh_config_flag(s: argparse.ArgumentParser) -> None:
     )
 
 
+def _limit_flags(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--time-budget", type=float, metavar="SECONDS",
+        help="CPU time [s] a planning call may spend (> 0; default: the planner's own)",
+    )
+    s.add_argument(
+        "--max-expansions", type=int, metavar="N",
+        help="symbolic search expansions (R-LGP's search; GNPP's logic search per iteration; "
+        "default: the planner's own)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rlgp-exec", description="Sense-plan-act executive for mobile manipulators.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-v info, -vv debug)")
+    ap.add_argument(
+        "-q", "--quiet", action="store_true", help="no planning progress on stderr (candidates, iterations)"
+    )
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("plan", help="plan a scene's task")
@@ -483,6 +569,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, help="randomise object poses with this seed (0: the file as is, as in bench)")
     s.add_argument("--json")
     s.add_argument("--plot", help="write the plan's base path (top view of the scene) to this PNG")
+    _limit_flags(s)
     s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("run", help="plan and execute a scene's task through a HAL backend")
@@ -501,23 +588,33 @@ def build_parser() -> argparse.ArgumentParser:
         help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
     )
     s.add_argument("--json")
+    _limit_flags(s)
     s.set_defaults(func=cmd_run)
 
-    s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability, executive, planners")
-    s.add_argument("task", help="timing | perception | camera | reachability | hal | executive | a scene file")
+    s = sub.add_parser("bench", help="benchmarks: timing, perception, hal, reachability, executive, scaling, planners")
+    s.add_argument(
+        "task", help="timing | perception | camera | reachability | hal | executive | scaling | a scene file"
+    )
     s.add_argument("scene_file", nargs="?", help="the scene, for `bench reachability` (and `bench camera`)")
     s.add_argument("--samples", type=int, default=200, help="reachability graph nodes")
     s.add_argument("--faults", type=int, default=50, help="bench executive: faults to inject")
-    s.add_argument("--planners")
-    s.add_argument("--seeds", type=int, default=20)
+    s.add_argument("--planners", help="comma-separated (scene file default: rlgp,lgp; scaling: rlgp,gnpp)")
+    s.add_argument("--seeds", type=int, help="seeds per scene (scene file default 20; scaling: per robot and N, 10)")
+    s.add_argument("--robots", default="pr2,hsr", help="scaling: the robots, comma-separated")
+    s.add_argument("--n", default="2..10", help="scaling: object counts, a range A..B or a list A,B,C")
     s.add_argument("--seed", type=int)
     s.add_argument(
         "--workers", type=int, default=None,
         help="worker processes (reachability: default all cores; planners: default 1, seeds run in sequence)",
     )
     s.add_argument("--cluster", help="planners: a Dask scheduler address (tcp://host:8786) to run the sweep on")
-    s.add_argument("--plot", help="planners: write the base trajectories (top view, one panel per planner) to this PNG")
+    s.add_argument(
+        "--plot",
+        help="planners: the base trajectories (top view, one panel per planner); scaling: time and success "
+        "against N; to this PNG",
+    )
     s.add_argument("--json")
+    _limit_flags(s)
     s.set_defaults(func=cmd_bench)
 
     s = sub.add_parser("perceive", help="detect AprilTags in rendered or given images")
@@ -564,6 +661,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--objects", choices=["camera", "mocap", "file"],
         help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
     )
+    _limit_flags(s)
     s.set_defaults(func=cmd_daemon)
 
     s = sub.add_parser(
@@ -616,6 +714,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    _show_progress(not args.quiet and args.command in ("plan", "run", "daemon", "bench"))
     try:
         return int(args.func(args))
     except RlgpError as e:

@@ -67,7 +67,7 @@ def test_a_job_that_raises_is_a_failed_run_with_the_reason():
 
     from rlgp_exec.planning.bench import _submit_all
 
-    def boom(scene_path, planner, seed):
+    def boom(scene_path, planner, seed, limits):
         raise RuntimeError(f"{planner} {seed} lost")
 
     with ThreadPoolExecutor(1) as ex:

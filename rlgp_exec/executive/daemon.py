@@ -134,7 +134,8 @@ class Daemon:
         config = session_config(listen=self.opts.listen, config_file=self.opts.zenoh_config)
         self._hal, self._objects = connect(self.scene, self.run_opts)
         self.executive = Executive(
-            self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed
+            self._hal, self.scene, self._objects, planner=self.run_opts.planner, seed=self.run_opts.seed,
+            limits=self.run_opts.limits,
         )
         self.executive.sm.listeners.append(self._on_transition)
         self.executive.on_recording_error = self._on_recording_error

@@ -27,6 +27,7 @@ from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scen
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
 from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.validate import Phase, goal_holds
@@ -110,6 +111,7 @@ class Executive:
         max_replans: int = 3,
         seed: int = 0,
         robot_wait_s: float = ROBOT_WAIT_S,
+        limits: PlanLimits = DEFAULT_LIMITS,
     ) -> None:
         if scene.robot.name != hal.model.name:
             raise RlgpError(
@@ -119,6 +121,7 @@ class Executive:
         self.scene = scene  # the world model: updated by every SENSE
         self.objects = objects
         self.planner, self.seed, self.max_replans = planner, seed, max_replans
+        self.limits = limits  # every plan and replan's CPU-time budget and search expansions
         self.robot_wait_s = robot_wait_s
         self.memory = PlannerMemory()  # the planners' graphs, kept (and improved) across plans and replans
         self.tol = tolerances or Tolerances()
@@ -431,7 +434,9 @@ class Executive:
             from rlgp_exec.planning.registry import plan as run_planner
 
             for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
-                plan = run_planner(scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory)
+                plan = run_planner(
+                    scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory, limits=self.limits
+                )
                 prog.plans += 1
                 prog.planning_time_s += plan.planning_time_s
                 if plan.success or self.signals.estop.is_set():

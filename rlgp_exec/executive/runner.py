@@ -26,6 +26,7 @@ from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
 from rlgp_exec.hal import make_backend
 from rlgp_exec.hal.interface import RobotInterface
+from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.scene import Scene
 
 __all__ = ["OBJECT_SOURCES", "RunOptions", "connect", "goal_objects", "object_source_name", "run_task"]
@@ -49,6 +50,7 @@ class RunOptions:
     heartbeat_timeout_s: float = 0.15  # zenoh/can: no fresh state for this long -> FAULT (15 cycles at 100 Hz)
     seed: int = 0
     objects: str | None = None  # one of OBJECT_SOURCES; None: the backend's default
+    limits: PlanLimits = DEFAULT_LIMITS  # the planner's CPU-time budget and search expansions, every plan
 
 
 def object_source_name(opts: RunOptions) -> str:
@@ -121,6 +123,7 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
                 time.sleep(0.05)
-        ex = Executive(hal, scene, objects, planner=opts.planner, recorder=recorder, seed=opts.seed)
+        ex = Executive(hal, scene, objects, planner=opts.planner, recorder=recorder, seed=opts.seed,
+                      limits=opts.limits)
         return ex.run(goal), ex
     raise AssertionError("unreachable")

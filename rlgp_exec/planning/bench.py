@@ -31,9 +31,10 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
-from rlgp_exec.scene import load_scene, randomize
+from rlgp_exec.scene import Scene, load_scene, randomize
 
 __all__ = ["run_isolated", "run_job", "run_planner_bench"]
 
@@ -45,29 +46,41 @@ def _median(xs: list[float]) -> float | None:
     return float(np.median(xs)) if xs else None
 
 
-def run_job(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
-    """One bench run (in any process): its record, and the base path [[x, y], ...] [m] if it succeeded."""
-    base = load_scene(scene_path)
-    scene = base if seed == 0 else randomize(base, seed)
-    t0 = time.perf_counter()
-    result = plan(scene, planner, seed=seed)
-    wall = time.perf_counter() - t0
+def run_job(
+    scene_source: str | Scene, planner: str, seed: int, limits: PlanLimits = DEFAULT_LIMITS
+) -> tuple[dict, list[list[float]]]:
+    """One bench run (in any process): its record, and the base path [[x, y], ...] [m] if it succeeded.
+    ``scene_source``: a scene file (randomised with ``seed``, 0: as written) or a scene planned as given.
+    The record's ``wall_s`` and ``cpu_s`` [s] are this process's, the whole planning call."""
+    if isinstance(scene_source, Scene):
+        scene = scene_source
+    else:
+        base = load_scene(scene_source)
+        scene = base if seed == 0 else randomize(base, seed)
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = plan(scene, planner, seed=seed, limits=limits)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     xy: list[list[float]] = []
     if result.success:
         xy = np.vstack([ph.path[:, :2] for ph in result.phases]).tolist() if result.phases else []
-    return {**result.summary(), "seed": seed, "wall_s": wall}, xy
+    return {**result.summary(), "seed": seed, "wall_s": wall, "cpu_s": cpu}, xy
 
 
-def _child(queue, scene_path: str, planner: str, seed: int) -> None:
-    queue.put(run_job(scene_path, planner, seed))
+def _child(queue, scene_source: str | Scene, planner: str, seed: int, limits: PlanLimits) -> None:
+    queue.put(run_job(scene_source, planner, seed, limits))
 
 
-def run_isolated(scene_path: str, planner: str, seed: int) -> tuple[dict, list[list[float]]]:
+def run_isolated(
+    scene_source: str | Scene, planner: str, seed: int, limits: PlanLimits = DEFAULT_LIMITS,
+    wall_timeout_s: float | None = None,
+) -> tuple[dict, list[list[float]]]:
     """``run_job`` in a child process of its own: a native crash (PyBullet, OMPL, IPOPT) becomes a
-    failed run with its exit code instead of the end of the sweep."""
-    ctx = mp.get_context("fork")
+    failed run with its exit code instead of the end of the sweep. ``wall_timeout_s`` [s]: a child still
+    planning after this long is killed and its run recorded as failed (the planners' own budget is CPU
+    time, which a stuck native call or a starved machine does not spend)."""
+    ctx = mp.get_context("fork")  # fork: the scene and limits reach the child without serialising them
     queue = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(queue, scene_path, planner, seed), daemon=True)
+    proc = ctx.Process(target=_child, args=(queue, scene_source, planner, seed, limits), daemon=True)
     t0 = time.perf_counter()
     proc.start()
     try:
@@ -77,6 +90,10 @@ def run_isolated(scene_path: str, planner: str, seed: int) -> tuple[dict, list[l
             except Empty:
                 if not proc.is_alive():
                     break
+                if wall_timeout_s is not None and time.perf_counter() - t0 > wall_timeout_s:
+                    proc.kill()
+                    proc.join()
+                    return _failed(planner, seed, f"timeout: still planning after {wall_timeout_s:.0f} s wall", t0)
         proc.join()
         return _failed(planner, seed, f"crashed: the planning process ended with exit code {proc.exitcode}", t0)
     finally:
@@ -89,7 +106,7 @@ def _failed(planner: str, seed: int, reason: str, t0: float) -> tuple[dict, list
     wall = time.perf_counter() - t0
     rec = {"success": False, "planner": planner, "planning_time_s": wall, "actions": [], "n_steps": 0,
            "base_path_length_m": 0.0, "collision_free": None, "goal_met": None, "n_nlp": 0,
-           "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall}
+           "nodes_expanded": 0, "reason": reason, "seed": seed, "wall_s": wall, "cpu_s": None}
     return rec, []
 
 
@@ -103,11 +120,12 @@ def _report(record: dict, done: int, total: int) -> None:
 
 
 def _submit_all(
-    jobs, submit: Callable[..., Any], scene_path: str, job=run_isolated, completed=as_completed
+    jobs, submit: Callable[..., Any], scene_path: str, job=run_isolated, completed=as_completed,
+    limits: PlanLimits = DEFAULT_LIMITS,
 ) -> list[tuple[dict, list]]:
     """Every job submitted at once; ``completed``: the ``as_completed`` of the futures' kind."""
     t0 = time.perf_counter()
-    futures = {submit(job, scene_path, name, seed): k for k, (seed, name) in enumerate(jobs)}
+    futures = {submit(job, scene_path, name, seed, limits): k for k, (seed, name) in enumerate(jobs)}
     out: list[tuple[dict, list] | None] = [None] * len(jobs)
     for done, fut in enumerate(completed(futures), 1):
         k = futures[fut]
@@ -120,7 +138,7 @@ def _submit_all(
     return out  # type: ignore[return-value]
 
 
-def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
+def _on_cluster(jobs, address: str, scene_path: str, limits: PlanLimits) -> list[tuple[dict, list]]:
     try:
         from dask.distributed import Client
         from dask.distributed import as_completed as dask_completed
@@ -139,7 +157,7 @@ def _on_cluster(jobs, address: str, scene_path: str) -> list[tuple[dict, list]]:
     with client:
         # run_job in the worker itself: Dask's workers are daemon processes, which may not start the
         # child process run_isolated would; a worker that dies on a job is replaced by its nanny
-        return _submit_all(jobs, client.submit, scene_path, run_job, dask_completed)
+        return _submit_all(jobs, client.submit, scene_path, run_job, dask_completed, limits)
 
 
 def run_planner_bench(
@@ -149,6 +167,7 @@ def run_planner_bench(
     workers: int | None = None,
     cluster: str | None = None,
     plot: str | Path | None = None,
+    limits: PlanLimits = DEFAULT_LIMITS,
 ) -> dict:
     valid = planner_names()
     bad = [p for p in planners if p not in valid]
@@ -162,14 +181,14 @@ def run_planner_bench(
     jobs = [(seed, name) for seed in range(seeds) for name in planners]  # interleaved, seed by seed
     t0 = time.perf_counter()
     if cluster:
-        results = _on_cluster(jobs, cluster, scene_path)
+        results = _on_cluster(jobs, cluster, scene_path, limits)
     elif workers and workers > 1:  # K jobs at a time, each in a process of its own (run_isolated)
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            results = _submit_all(jobs, pool.submit, scene_path)
+            results = _submit_all(jobs, pool.submit, scene_path, limits=limits)
     else:
         results = []
         for k, (seed, name) in enumerate(jobs):
-            results.append(run_isolated(scene_path, name, seed))
+            results.append(run_isolated(scene_path, name, seed, limits))
             _report(results[-1][0], k + 1, len(jobs))
     sweep_s = time.perf_counter() - t0
     runs = [r for r, _ in results]
@@ -223,6 +242,7 @@ def run_planner_bench(
         "sweep_wall_s": sweep_s,
         "graph_build_s": stats.build_time_s,
         "graph_from_cache": stats.from_cache,
+        "limits": limits.as_dict(),
         "runs": runs,
         "summary": summary,
     }

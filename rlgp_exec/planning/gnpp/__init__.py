@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rlgp_exec.planning.gnpp.planner import VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
+from rlgp_exec.planning.gnpp.planner import LOGIC_MAX_EXPANSIONS, VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
+from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.registry import register
@@ -19,7 +20,7 @@ __all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "
 
 
 def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts: bool = False):
-    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None) -> Plan:
+    def run(scene: Scene, seed: int, memory: PlannerMemory | None = None, limits: PlanLimits = DEFAULT_LIMITS) -> Plan:
         from dataclasses import replace
 
         if not scene.start.empty:  # its PNTC model starts from empty grippers and closed drawers
@@ -27,7 +28,8 @@ def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts
             return Plan(False, name, (), np.zeros((0, 0)), (), 0.0, 0, 0, None,
                         f"unsupported start: {why}; {name} plans from empty hands and closed drawers (use rlgp)")
         res = plan_gnpp(
-            scene, variant, logic=logic, timeout_s=BENCH_TIMEOUT_S, memory=memory, lm_verdicts=lm_verdicts
+            scene, variant, logic=logic, timeout_s=limits.time_budget_s or BENCH_TIMEOUT_S, memory=memory,
+            lm_verdicts=lm_verdicts, max_expansions=limits.max_expansions or LOGIC_MAX_EXPANSIONS,
         )
         return replace(res.plan, planner=name)
 

@@ -62,7 +62,7 @@ from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 
-__all__ = ["VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
+__all__ = ["LOGIC_MAX_EXPANSIONS", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +104,12 @@ class GnppResult:
     counters: dict = field(default_factory=dict)
 
 
+LOGIC_MAX_EXPANSIONS = 200_000  # the internal logic search's expansions per iteration
+
+
 def _logic_plan(
-    task: GroundProblem, forbidden: list[ForbiddenSequence], logic: Logic, timeout_s: float
+    task: GroundProblem, forbidden: list[ForbiddenSequence], logic: Logic, timeout_s: float,
+    max_expansions: int = LOGIC_MAX_EXPANSIONS,
 ) -> tuple[tuple[GroundAction, ...] | None, GnppStatus | None, str]:
     ref = reformulate(task, forbidden).problem
     if logic is Logic.FAST_DOWNWARD:
@@ -115,7 +119,7 @@ def _logic_plan(
         if r.status is FDStatus.UNSOLVABLE:
             return None, GnppStatus.INFEASIBLE, "Fast Downward: unsolvable"
         return None, GnppStatus.LOGIC_FAILED, f"Fast Downward: {r.status.value}: {r.reason}"
-    search = best_first(ref, max_expansions=200_000, heuristic=goal_lower_bound(task), max_visits=1)
+    search = best_first(ref, max_expansions=max_expansions, heuristic=goal_lower_bound(task), max_visits=1)
     for cand in search:
         return cand.actions, None, ""
     if search.stats.exhausted:
@@ -134,6 +138,7 @@ def plan_gnpp(
     on_nlp: Callable[[SolverRun], None] | None = None,
     lm_verdicts: bool = False,
     memory_cap_bytes: int = MEMORY_CAP_BYTES,
+    max_expansions: int = LOGIC_MAX_EXPANSIONS,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
@@ -146,14 +151,17 @@ def plan_gnpp(
     ``GraphSolver.lm_refute``). A plan whose replay fails is laid out once more from its graph-NLP point moved
     inside its inequality rows (``GraphSolver.polish``) before it is blocked. The budget (``timeout_s``, and
     ``memory_cap_bytes`` of growth, ``planning.budget``) is checked inside every stage; once spent, the
-    status is TIMEOUT with a reason "budget: ..." naming the stage and iteration."""
+    status is TIMEOUT with a reason "budget: ..." naming the stage and iteration. ``max_expansions``: the
+    internal logic search's expansion cap per iteration (Fast Downward has its own)."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     t0 = time.perf_counter()
     b = Budget(timeout_s, memory_cap_bytes)
     with using(b):
         try:
-            return _plan(scene, variant, logic, max_iterations, memory, trajectories, on_nlp, lm_verdicts, b)
+            return _plan(
+                scene, variant, logic, max_iterations, memory, trajectories, on_nlp, lm_verdicts, b, max_expansions
+            )
         except BudgetError as e:  # in the set-up (the loop returns its own)
             log.info("%s: %s", variant, e)
             plan = Plan(False, variant, (), np.zeros((0, 0)), (), time.perf_counter() - t0, 0, 0, None, str(e))
@@ -170,6 +178,7 @@ def _plan(
     on_nlp: Callable[[SolverRun], None] | None,
     lm_verdicts: bool,
     budget: Budget,
+    max_expansions: int = LOGIC_MAX_EXPANSIONS,
 ) -> GnppResult:
     """``plan_gnpp`` under its open ``budget``."""
     opts = VARIANTS[variant]
@@ -237,7 +246,7 @@ def _plan(
         try:
             budget.check()
             tl = time.perf_counter()
-            actions, status, why = _logic_plan(task, forbidden, logic, budget.left())
+            actions, status, why = _logic_plan(task, forbidden, logic, budget.left(), max_expansions)
             logic_s += time.perf_counter() - tl
             if actions is None:
                 assert status is not None
@@ -254,6 +263,8 @@ def _plan(
                 return result(status, f"{status.value}: {why}{proof}", it=it)
             if n0 is None:
                 n0 = len(actions)
+            log.info("%s iteration %d: %s (%d NLPs solved, %d conflicts learnt so far)", variant, it,
+                     " ".join(map(str, actions)), solver.n_solves, len(found))
             bad = [a for a in actions if a.name not in GEOMETRIC]
             states = task.simulate(actions)
             if bad:
