@@ -69,7 +69,13 @@ from rlgp_exec.scene.types import (
     SceneObject,
     TagSpec,
 )
-from rlgp_exec.scene.validate import SUPPORT_TOLERANCE, check_robot_start, find_support, validate_geometry
+from rlgp_exec.scene.validate import (
+    SUPPORT_TOLERANCE,
+    check_robot_start,
+    find_support,
+    validate_geometry,
+    validate_goal_stacks,
+)
 
 __all__ = ["load_scene", "scene_from_dict"]
 
@@ -391,6 +397,7 @@ def _build(r: _Reader, data: Any) -> Scene:
     scene = Scene(name, robot, scene.fixtures, scene.objects, scene.regions, goal, r.source)
     scene = find_support(scene, r.fail)
     validate_geometry(scene, r.fail)
+    validate_goal_stacks(scene, r.fail)
     check_robot_start(scene, r.fail)
     return scene
 
