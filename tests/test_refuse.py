@@ -178,7 +178,7 @@ def test_a_footprint_that_cannot_carry_another_is_refused_at_load():
     with pytest.raises(SceneError, match=rf"\(on {a} {b}\): {b}'s footprint 0.04 x 0.04 m cannot carry {a}'s "
                                           r"0.05 x 0.05 m \(stacking rule"):
         _stack_scene({a: 0.05, b: 0.04}, [f"(on {a} {b})"])
-    (_stack_scene({a: 0.04, b: 0.05}, [f"(on {a} {b})"]))  # smaller on larger: fine
+    _stack_scene({a: 0.04, b: 0.05}, [f"(on {a} {b})"])  # smaller on larger: fine
     with pytest.raises(SceneError, match="one object stacks on another at most"):
         _stack_scene({}, [f"(on {a} {c})", f"(on {b} {c})"])
     with pytest.raises(SceneError, match=r"puts .* on itself"):

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rlgp_exec.errors import RlgpError
+from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.scene import Scene
 
 __all__ = [
@@ -40,8 +40,13 @@ DRAWER_KINDS = frozenset({"drop", "take_knob", "open_drawer", "close_drawer", "p
 _ROBOTS = frozenset({"hsr", "pr2"})
 
 
-class TaskRefusedError(RlgpError):
-    """A task refused before any search: the planner cannot express it, or no robot could do it."""
+class TaskRefusedError(SceneError):
+    """A task refused before any search: the planner cannot express it, or the robot could not do it. A
+    SceneError (the scene, as a task for this planner and robot, is bad input): the CLI exits 2 and the
+    executive ends the task FAILED, as for a world it cannot plan in."""
+
+    def __init__(self, scene: Scene, where: str, message: str) -> None:
+        super().__init__(scene.source or scene.name, where, message)
 
 
 class Capability(NamedTuple):
@@ -59,6 +64,14 @@ CAPABILITIES: dict[str, Capability] = {
     "lgp": _RLGP,
     **{v: _GNPP for v in ("gnpp_t", "gnpp_tr", "gnpp_trn", "gnpp_trng", "oneway")},
 }
+
+
+_LISTED = 3  # reasons a refusal lists at most: the message stays one readable line
+
+
+def _listed(reasons: list[str]) -> str:
+    more = f"; and {len(reasons) - _LISTED} more" if len(reasons) > _LISTED else ""
+    return "; ".join(reasons[:_LISTED]) + more
 
 
 def capability(planner: str) -> Capability:
@@ -186,7 +199,8 @@ def refuse(scene: Scene, planner: str) -> None:
     # what no planner could do first: an object too wide for the hand also changes how the goal is typed
     physical = physical_refusals(scene)
     if physical:
-        raise TaskRefusedError(f"{scene.name}: cannot be done by the {scene.robot.name}: " + "; ".join(physical))
+        raise TaskRefusedError(scene, f"[[object]] '{physical[0][0]}'.size",
+                               f"cannot be done by the {scene.robot.name}: " + _listed([r for _, r in physical]))
     missing = {k: why for k, why in needed.items() if k not in cap.actions}
     if missing:
         drawer = set(missing) <= DRAWER_KINDS
@@ -194,7 +208,7 @@ def refuse(scene: Scene, planner: str) -> None:
         able = sorted({c.suggest for c in CAPABILITIES.values() if set(missing) <= c.actions})
         use = f"use --planner {' or '.join(able)}" if able else "no planner here has them all"
         needs = "; ".join(f"{k} for {why}" for k, why in missing.items())
-        raise TaskRefusedError(f"{planner}: {what} ({needs}); {use}")
+        raise TaskRefusedError(scene, "[goal]", f"{planner}: {what} ({needs}); {use}")
     if scene.robot.name not in cap.drives_base:
         far = _out_of_reach(scene, moved_objects(scene))
         if far:
@@ -203,6 +217,7 @@ def refuse(scene: Scene, planner: str) -> None:
             use = (f"{' and '.join(able)} drive{'s' if len(able) == 1 else ''} the base: use --planner {able[0]}"
                    if able else "no planner here drives its base with these actions")
             reach = ", ".join(f"{m} {r:.2f} m" for m, _, r in arm_reach(scene.robot.name))
-            raise TaskRefusedError(f"{planner}: keeps the {scene.robot.name}'s base at its start, where its arms reach "
-                              f"at most {reach} from their first joints: " + "; ".join(far) + f"; {use}")
+            raise TaskRefusedError(scene, "[robot].base",
+                                   f"{planner}: keeps the {scene.robot.name}'s base at its start, where its arms "
+                                   f"reach at most {reach} from their first joints: " + _listed(far) + f"; {use}")
     log.debug("%s: %s accepted", planner, scene.name)

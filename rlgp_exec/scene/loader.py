@@ -22,7 +22,8 @@ Bounds (``rlgp_exec.scene.rules``, each with its reason): extents in [SIZE_MIN, 
 [SIZE_MIN, FIXTURE_SIZE_MAX]; fixture and object centres within WORKSPACE_RADIUS of the base, x and y
 within COORD_MAX, yaws within ANGLE_MAX, bottoms not below the floor and tops below HEIGHT_MAX; joint
 overrides within their URDF limits (+ JOINT_TOLERANCE); fixtures apart; the robot's base footprint and
-its start configuration clear of every fixture (START_OVERLAP); at least one goal literal; files of
+its start configuration clear of every fixture (START_OVERLAP); at least one goal literal; goal stacks a
+footprint can carry, one object on another, one support per object, no cycle; files of
 UTF-8, at most FILE_BYTES_MAX bytes and NESTING_MAX levels.
 
 Every error is a :class:`~rlgp_exec.errors.SceneError` naming the file, the table and the field, with
