@@ -280,6 +280,10 @@ def test_memory_stays_bounded_on_fifty_objects():
     assert res["peak_rss"] < BASELINE + MEMORY_CAP, res
 
 
-def test_refusals_are_rlgp_errors():
-    with pytest.raises(RlgpError):
+def test_a_refusal_is_a_scene_error_naming_the_file_and_the_table():
+    with pytest.raises(SceneError) as e:
         refuse(load_scene(SCENES / "tower_pr2.toml"), "lgp")
+    assert (e.value.source, e.value.where) == ("tower_pr2.toml", "[goal]")
+    assert e.value.detail.startswith("lgp: no stack action")
+    with pytest.raises(RlgpError, match="no capability entry for planner 'nope'; valid: "):
+        refuse(load_scene(SCENES / "tower_pr2.toml"), "nope")

@@ -1,7 +1,7 @@
 """What each planner can express, in one table, and the check both planners run before any search.
 
 ``CAPABILITIES`` is the single place that changes when a planner gains an action kind or starts to
-drive a robot's base. ``refuse(scene, planner)`` raises ``TaskRefusedError`` (an ``RlgpError``: the CLI's
+drive a robot's base. ``refuse(scene, planner)`` raises ``TaskRefusedError`` (a ``SceneError``: the CLI's
 exit 2) naming what the goal needs that the planner lacks and which planners have it, or a physical
 impossibility (``feasibility.physical_refusals``), or, for a planner that keeps the base where it
 starts, an object or target beyond a conservative bound on the arms' reach. It builds no graph and
