@@ -311,9 +311,11 @@ def test_obstacle_tower_is_planned_not_declared_infeasible():
 
 
 def test_objects_wider_than_the_open_gripper_are_not_picked(pr2):
-    """Hanoi with 8 and 10 cm discs: they do not fit between the open PR2 fingertips (7.5 cm): every plan
-    that lets one go fails the replay (the fingers touch it lifting off), so none is tried: the task
-    ends infeasible at once, saying why, without an NLP."""
+    """Hanoi with 8 and 10 cm discs: they do not fit between the open PR2 fingertips (``gripper_limits``):
+    every plan that lets one go would fail the replay (the fingers touch it lifting off), so the task is
+    refused at once, naming them, before any NLP."""
+    from rlgp_exec.planning.capabilities import TaskRefusedError
+
     hanoi = load_scene(SCENES / "hanoi_pr2.toml")
     wider = {"d_large": 0.1, "d_mid": 0.08}
     scene = dataclasses.replace(hanoi, objects=tuple(
@@ -322,10 +324,9 @@ def test_objects_wider_than_the_open_gripper_are_not_picked(pr2):
     ))
     assert FactorLib(pr2, hanoi).too_wide() == {}
     assert FactorLib(pr2, scene).too_wide() == wider
-    res = plan_gnpp(scene, "gnpp_trn", timeout_s=30.0)
-    assert res.status is GnppStatus.INFEASIBLE
-    assert "wider than the open gripper" in res.plan.reason and "d_mid" in res.plan.reason
-    assert res.counters["nlp"] == 0
+    with pytest.raises(TaskRefusedError, match="d_large is wider than the pr2's open gripper") as e:
+        plan_gnpp(scene, "gnpp_trn", timeout_s=30.0)
+    assert "d_mid is wider" in str(e.value)
     small = _tower(["b1"], ["(on b1 goal_region)"])  # 5 cm blocks fit, with room to be let go
     assert FactorLib(pr2, small).too_wide() == {} and FactorLib(pr2, small).grasp_offset_max("b1") > 0
 

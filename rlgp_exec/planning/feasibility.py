@@ -21,7 +21,7 @@ from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.robot.config import load_robot_config
 from rlgp_exec.scene import Scene
 
-__all__ = ["goal_manipulator", "unreachable_goal"]
+__all__ = ["goal_manipulator", "moved_objects", "physical_refusals", "unreachable_goal"]
 
 log = logging.getLogger(__name__)
 
@@ -64,3 +64,62 @@ def unreachable_goal(geo, problem: GroundProblem) -> str | None:
 
 def problem_objects(scene: Scene) -> set[str]:
     return {o.name for o in scene.objects}
+
+
+def moved_objects(scene: Scene) -> list[str]:
+    """Objects the goal needs the hand to hold (name order): the held one, each one an ``on``/``in`` literal
+    names that is not already where the literal wants it, and whatever rests on one of those (or on an
+    object the goal stacks onto)."""
+    from rlgp_exec.planning.validate import goal_holds
+
+    poses = {o.name: o.T for o in scene.objects}
+    openings = dict(scene.start.openings)
+    out = {scene.start.held} if scene.start.held is not None else set()
+    names = {o.name for o in scene.objects}
+    cleared = set()  # objects whose tops must be free: what is moved, and an object stacked onto
+    for lit in scene.goal.literals:
+        if lit.predicate in ("on", "in") and not goal_holds(scene, lit, poses, openings)[0]:
+            out.add(lit.args[0])
+            cleared |= {lit.args[0]} | ({lit.args[1]} & names)
+    on = {o.name: o.support for o in scene.objects}
+    for o in scene.objects:  # what rests (through others) on one of them must be moved off it first
+        x, seen = on[o.name], {o.name}
+        while x in on and x not in seen:
+            if x in cleared and o.name not in out:
+                out.add(o.name)
+                break
+            seen.add(x)
+            x = on[x]
+    return sorted(out)
+
+
+def physical_refusals(scene: Scene) -> list[tuple[str, str]]:
+    """Why the robot's first hand cannot hold an object the goal moves, one reason per object and rule
+    (``planning.gripper_limits``: its open width and its fingertips' reach, probed once per robot; the
+    scene rules' SIZE_MIN for scenes not read by the loader) as (object, reason); empty when none applies."""
+    from rlgp_exec.planning.gripper_limits import GRIP_CLEARANCE, gripper_limits, min_graspable_height
+    from rlgp_exec.scene.rules import SIZE_MIN
+
+    limits = gripper_limits(scene.robot.name)
+    robot = scene.robot.name
+    low = min_graspable_height(limits)
+    reasons = []
+    for name in moved_objects(scene):
+        o = scene.object(name)
+        if min(o.size) < SIZE_MIN:
+            reasons.append((name, f"{name} {list(o.size)} m: an extent below SIZE_MIN {SIZE_MIN} m"))
+            continue
+        width = min(o.size[:2])  # the grasp closes across either horizontal axis: the narrower one is best
+        if width > limits.max_width_m:
+            reasons.append((name,
+                f"{name} is wider than the {robot}'s open gripper: its narrower side {width:.3f} m, the "
+                f"fingers open {limits.open_width_m:.3f} m at the grasp depth, so at most "
+                f"{limits.max_width_m:.3f} m fits with {GRIP_CLEARANCE * 1000:g} mm each side"
+            ))
+        if o.size[2] < low:
+            reasons.append((name,
+                f"{name} is shorter than the {robot}'s grasp needs: {o.size[2]:.3f} m tall, at least "
+                f"{low:.3f} m (the open fingertips reach {limits.tip_reach_m:.3f} m past the tool point, held "
+                f"at most half the height below the top, {GRIP_CLEARANCE * 1000:g} mm off the support)"
+            ))
+    return reasons

@@ -29,6 +29,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, using
+from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
@@ -216,6 +217,7 @@ def plan_scene(
     this call teaches it, for the next call."""
     if planner not in PLANNERS:
         raise RlgpError(f"unknown planner {planner!r}; valid: {list(PLANNERS)}")
+    refuse(scene, planner)  # TaskRefusedError before any search: what the planner or the robot cannot do
     t0 = time.perf_counter()
     budget = Budget(time_budget_s, memory_cap_bytes)
     try:

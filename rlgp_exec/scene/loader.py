@@ -22,7 +22,8 @@ Bounds (``rlgp_exec.scene.rules``, each with its reason): extents in [SIZE_MIN, 
 [SIZE_MIN, FIXTURE_SIZE_MAX]; fixture and object centres within WORKSPACE_RADIUS of the base, x and y
 within COORD_MAX, yaws within ANGLE_MAX, bottoms not below the floor and tops below HEIGHT_MAX; joint
 overrides within their URDF limits (+ JOINT_TOLERANCE); fixtures apart; the robot's base footprint and
-its start configuration clear of every fixture (START_OVERLAP); at least one goal literal; files of
+its start configuration clear of every fixture (START_OVERLAP); at least one goal literal; goal stacks a
+footprint can carry, one object on another, one support per object, no cycle; files of
 UTF-8, at most FILE_BYTES_MAX bytes and NESTING_MAX levels.
 
 Every error is a :class:`~rlgp_exec.errors.SceneError` naming the file, the table and the field, with
@@ -69,7 +70,13 @@ from rlgp_exec.scene.types import (
     SceneObject,
     TagSpec,
 )
-from rlgp_exec.scene.validate import SUPPORT_TOLERANCE, check_robot_start, find_support, validate_geometry
+from rlgp_exec.scene.validate import (
+    SUPPORT_TOLERANCE,
+    check_robot_start,
+    find_support,
+    validate_geometry,
+    validate_goal_stacks,
+)
 
 __all__ = ["load_scene", "scene_from_dict"]
 
@@ -391,6 +398,7 @@ def _build(r: _Reader, data: Any) -> Scene:
     scene = Scene(name, robot, scene.fixtures, scene.objects, scene.regions, goal, r.source)
     scene = find_support(scene, r.fail)
     validate_geometry(scene, r.fail)
+    validate_goal_stacks(scene, r.fail)
     check_robot_start(scene, r.fail)
     return scene
 

@@ -12,9 +12,18 @@ from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_b
 from rlgp_exec.scene.rules import HEIGHT_MAX, START_OVERLAP
 from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject, pose_matrix
 
-__all__ = ["SUPPORT_TOLERANCE", "check_robot_start", "find_support", "footprint_radius", "validate_geometry"]
+__all__ = [
+    "STACK_TOLERANCE",
+    "SUPPORT_TOLERANCE",
+    "check_robot_start",
+    "find_support",
+    "footprint_radius",
+    "validate_geometry",
+    "validate_goal_stacks",
+]
 
 SUPPORT_TOLERANCE = 0.005  # [m] between an object's bottom and its support surface
+STACK_TOLERANCE = 1e-6  # [m] the stackable rule's rounding slack (as the symbolic layer's)
 
 Fail = Callable[[str, str], SceneError]
 
@@ -180,3 +189,43 @@ def _start_contact(scene: Scene) -> tuple[str, str, str, float] | None:
         return None
     worst = min(hits, key=lambda c: c.distance)
     return (worst.link, *parts[worst.other_body], -worst.distance)
+
+
+def _footprint(o: SceneObject) -> tuple[float, float]:
+    a, b = sorted(o.size[:2])
+    return (a, b)
+
+
+def validate_goal_stacks(scene: Scene, fail: Fail) -> None:
+    """The goal's ``(on a b)`` literals with b an object, by the stacking rules the planners keep: b's
+    footprint carries a's (the Hanoi rule: a's sorted extents no larger than b's), one object on another
+    at most, an object on one support at most, and no object stacked on itself through others."""
+    objects = {o.name: o for o in scene.objects}
+    on = [(i, lit.args[0], lit.args[1]) for i, lit in enumerate(scene.goal.literals) if lit.predicate == "on"]
+    below: dict[str, tuple[int, str]] = {}
+    above: dict[str, tuple[int, str]] = {}
+    for i, a, b in on:
+        where = f"[goal].literals[{i}]"
+        text = f"(on {a} {b})"
+        if a in below and below[a][1] != b:
+            raise fail(where, f"{text}: {a} is also to be on {below[a][1]!r} (literal {below[a][0]}); an object "
+                              f"rests on one support")
+        below[a] = (i, b)
+        if b not in objects:
+            continue
+        fa, fb = _footprint(objects[a]), _footprint(objects[b])
+        if fa[0] > fb[0] + STACK_TOLERANCE or fa[1] > fb[1] + STACK_TOLERANCE:
+            raise fail(where, f"{text}: {b}'s footprint {fb[0]:g} x {fb[1]:g} m cannot carry {a}'s "
+                              f"{fa[0]:g} x {fa[1]:g} m (stacking rule: the upper footprint's sorted extents no "
+                              f"larger than the lower's)")
+        if b in above and above[b][1] != a:
+            raise fail(where, f"{text}: {above[b][1]} is also to be on {b} (literal {above[b][0]}); one object "
+                              f"stacks on another at most")
+        above[b] = (i, a)
+    for i, a, _ in on:
+        chain, x = [a], below[a][1]
+        while x in below and x not in chain:
+            chain.append(x)
+            x = below[x][1]
+        if x == a:
+            raise fail(f"[goal].literals[{i}]", f"the stack {' on '.join([*chain, a])} puts {a} on itself")

@@ -28,6 +28,7 @@ import numpy as np
 import pybullet as p
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.gripper_limits import gripper_limits
 from rlgp_exec.planning.nlp.factors import (
     GRASP_DEPTH,
     RobotSymbols,
@@ -267,11 +268,14 @@ class FactorLib:
         finger pads, and so that the open fingers (``FINGER_INNER``) stay ``FINGER_CLEAR`` off its faces
         once it is let go (the hand lifts off past it). Negative: wider than the open gripper."""
         half = min(self.objects[obj].size[:2]) / 2
-        return min(half - 0.015, self.finger_inner - half - FINGER_CLEAR)
+        # an object narrower than the pads is held at its centre: no offset, not "wider"
+        return min(max(half - 0.015, 0.0), self.finger_inner - half - FINGER_CLEAR)
 
     def too_wide(self) -> dict[str, float]:
-        """Objects the open gripper cannot close round (and let go) without touching: name -> width [m]."""
-        return {o: min(v.size[:2]) for o, v in self.objects.items() if self.grasp_offset_max(o) < 0.0}
+        """Objects wider than the open gripper (``gripper_limits``: the rule the planners' entry check
+        states), whose narrower side it cannot close round and let go of: name -> that width [m]."""
+        limit = gripper_limits(self.scene.robot.name).max_width_m
+        return {o: min(v.size[:2]) for o, v in self.objects.items() if min(v.size[:2]) > limit}
 
     def surface(self, support: str) -> tuple[FloatArray, tuple[float, float], float]:
         return _target_surface(self.scene, support)

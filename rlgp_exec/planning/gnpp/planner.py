@@ -25,6 +25,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, cpu_clock, using
+from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.gnpp.conflicts import (
     FILTER_MAX,
     FILTER_MAX_NO_ROBOT,
@@ -155,6 +156,7 @@ def plan_gnpp(
     internal logic search's expansion cap per iteration (Fast Downward has its own)."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
+    refuse(scene, variant)  # TaskRefusedError before any search: what GNPP or the robot cannot do
     t0 = time.perf_counter()
     b = Budget(timeout_s, memory_cap_bytes)
     with using(b):
