@@ -12,12 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, using
+from rlgp_exec.planning.capabilities import TaskRefusedError
 from rlgp_exec.planning.gnpp import GnppStatus, Logic, plan_gnpp
 from rlgp_exec.planning.gnpp.conflicts import Checker, ExtractOptions, find_conflict
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import Relaxation, components, relax, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
+from rlgp_exec.planning.gnpp.planner import _plan
 from rlgp_exec.planning.gnpp.pntc import add_flags, factors_of
 from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun, ipopt_options, run_feasible
 from rlgp_exec.planning.symbolic import GroundAction, ground_scene, reformulate
@@ -181,7 +184,11 @@ def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
         scene,
         objects=tuple(dataclasses.replace(o, pose=(0.45, 0.25, o.pose[2], 0.0)) for o in scene.objects),
     )
-    res = plan_gnpp(scene, "gnpp_trn", logic=Logic.INTERNAL, timeout_s=60.0)
+    with pytest.raises(TaskRefusedError, match="b5 is .* beyond"):  # the entry's reach bound says so at once
+        plan_gnpp(scene, "gnpp_trn", logic=Logic.INTERNAL, timeout_s=60.0)
+    budget = Budget(60.0, MEMORY_CAP_BYTES)  # and the search itself proves it, past the entry's check
+    with using(budget):
+        res = _plan(scene, "gnpp_trn", Logic.INTERNAL, 300, None, True, None, False, budget)
     assert res.status is GnppStatus.INFEASIBLE, res.plan.reason
     assert not res.plan.success and "infeasible" in res.plan.reason
     assert res.conflicts  # the learnt conflicts are the proof; each is infeasible on its own
