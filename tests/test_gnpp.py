@@ -184,7 +184,7 @@ def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
         scene,
         objects=tuple(dataclasses.replace(o, pose=(0.45, 0.25, o.pose[2], 0.0)) for o in scene.objects),
     )
-    with pytest.raises(TaskRefusedError, match="b5 is .* beyond"):  # the entry's reach bound says so at once
+    with pytest.raises(TaskRefusedError, match=r"b5 is .* beyond"):  # the entry's reach bound says so at once
         plan_gnpp(scene, "gnpp_trn", logic=Logic.INTERNAL, timeout_s=60.0)
     budget = Budget(60.0, MEMORY_CAP_BYTES)  # and the search itself proves it, past the entry's check
     with using(budget):
