@@ -22,7 +22,9 @@ if TYPE_CHECKING:
 __all__ = ["main"]
 
 log = logging.getLogger("rlgp_exec")
-PROGRESS_LOGGERS = ("rlgp_exec.planning.rlgp", "rlgp_exec.planning.gnpp.planner")  # candidates, iterations
+PROGRESS_LOGGERS = (  # candidates, long sequences' keyframe chunks, GNPP iterations
+    "rlgp_exec.planning.rlgp", "rlgp_exec.planning.nlp.keyframe_chunks", "rlgp_exec.planning.gnpp.planner",
+)
 
 
 _progress: list[logging.Handler] = []  # the handler _show_progress attached, for the next main() to replace

@@ -270,6 +270,8 @@ def _candidates(
                 if isinstance(actions, str):
                     reasons.append(actions)
                     continue
+                log.info("%s candidate %d: %d actions after %d expansions (symbolic cost %.1f); solving its geometry",
+                         planner, k, len(actions), search.stats.expanded, cand.cost)
                 with budget.at("geometry", f"candidate {k}"):
                     result = geo.plan_actions(actions, planner, search.stats.expanded, t_start=t0)
                 log.info("%s candidate %d %s: %s", planner, k, cand, result.reason)

@@ -12,6 +12,7 @@ can drop every candidate that shares it. Sequences of at most ``JOINT_ACTIONS`` 
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
@@ -24,6 +25,8 @@ from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene.types import Scene, StartState
 
 __all__ = ["CHUNK_ACTIONS", "HAND_EMPTY_AFTER", "JOINT_ACTIONS", "ChunkedKeyframes", "chunks"]
+
+log = logging.getLogger(__name__)
 
 JOINT_ACTIONS = 8  # sequences up to the longest shipped task's length are solved jointly
 CHUNK_ACTIONS = 2  # longer ones a pick and its put-down at a time: a failing pair is then named exactly
@@ -89,6 +92,8 @@ class ChunkedKeyframes:
                 if r.ok:
                     break
             results.append(r)
+            log.info("keyframes: chunk %d/%d (%s) %s", k + 1, len(parts), " ".join(str(a) for a in part),
+                     "solved" if r.ok else f"failed: {r.reason}")
             if not r.ok:
                 if len(parts) > 1:  # the chunks before were solved from the same start: this prefix is doomed
                     r = replace(r, doomed=done + len(part) if k + 1 < len(parts) else 0,
