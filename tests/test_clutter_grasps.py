@@ -77,3 +77,26 @@ def test_clutter_scene_plans_with_the_fingers_closing_across_the_free_sides(robo
     assert abs(c[0]) < 0.1 * np.linalg.norm(c[:2]), c
     for name in ("block_left", "block_right"):  # the neighbours were not pushed
         assert np.linalg.norm(v.final_poses[name][:3, 3] - scene.object(name).T[:3, 3]) < 1e-3
+
+
+@pytest.mark.parametrize("robot", ["pr2"])  # the HSR's open fingers (25 cm) reach over 5 cm neighbours
+def test_the_replay_rejects_fingers_turned_towards_a_neighbour(robot):
+    from dataclasses import replace
+
+    from rlgp_exec.planning.rlgp import plan_scene
+    from rlgp_exec.planning.validate import validate_plan
+
+    scene = load_scene(SCENES / f"clutter_{robot}.toml")
+    plan = plan_scene(scene, "rlgp")
+    assert plan.success, plan.reason
+    model = load_robot(scene.robot.name)
+    arm = [model.joint_names[i] for i in model.group(model.manipulator().group)]
+    roll = model.joint_names.index(next(n for n in arm if "wrist_roll" in n))
+    k = next(i for i, ph in enumerate(plan.phases) if ph.grasp == "block_target")
+    path = plan.phases[k].path.copy()
+    path[-1, roll] += np.pi / 2  # the same grasp point, the fingers closing towards the neighbours
+    phases = list(plan.phases)
+    phases[k] = replace(phases[k], path=path)
+    v = validate_plan(scene, phases[: k + 1])
+    assert not v.collision_free
+    assert any("block_left" in c or "block_right" in c for c in v.collisions), v.collisions
