@@ -39,6 +39,7 @@ from rlgp_exec.planning.nlp.hand import (
 from rlgp_exec.planning.nlp.keyframe_chunks import JOINT_ACTIONS, ChunkedKeyframes
 from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, KeyframeResult, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
+from rlgp_exec.planning.nlp.pick_fingers import palm_box_spheres
 from rlgp_exec.planning.plan import Level3Stats, Plan
 from rlgp_exec.planning.transport import APPROACH, Transport
 from rlgp_exec.planning.validate import Phase, Validation, validate_with_fallbacks
@@ -113,6 +114,7 @@ class SequenceGeometry:
         self.moves = Transport(self.model, scene, self.checker, self.drawers, self.graph)
         self.hand = finger_spheres(self.checker.robot, self.model, self.q0)
         self.mesh_hand = mesh_finger_spheres(self.checker.robot, self.model, self.q0)  # keyframes only
+        self.palm_hand = palm_box_spheres(self.checker.robot, self.model, self.q0)  # picks' keyframes only
         self.self_spheres = arm_link_spheres(self.model)
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         # level 3's self-clearance: the body and the other arms where q0 has them
@@ -378,6 +380,7 @@ class SequenceGeometry:
             seeds=self._graph_seeds,
             cache=cache,
             mesh_hand=self.mesh_hand,
+            palm_hand=self.palm_hand,
             inner=self.inner,
         )
 

@@ -104,16 +104,20 @@ class RobotSymbols:
 
 
 def box_clear(
-    rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0, tool_margin: float | None = None
+    rs: RobotSymbols, boxes: list[Box], rows: Rows, margin: float = 0.0, tool_margin: float | None = None,
+    skip: tuple[str, ...] = (),
 ) -> None:
     """Every arm sphere at least its radius (+ margin; the tool frame's sphere + ``tool_margin`` if given)
     from every box (per box, all spheres at once: one matrix product and one mapped ``box_sdf``, not a
-    few CasADi calls per sphere)."""
-    if not boxes or not rs.spheres:
+    few CasADi calls per sphere). The spheres on the frames in ``skip`` have no rows (a pick's tool and
+    palm, where the fingers' and the hand's own spheres keep them off the neighbours)."""
+    keep = [i for i, (f, _) in enumerate(rs.spheres) if f not in skip]
+    if not boxes or not keep:
         return
-    centres = ca.horzcat(*(Tk[:3, 3] for Tk in rs.sphere_T))  # (3, S) world
-    tool = rs.manip.tool_frame
-    lower = [r + (tool_margin if tool_margin is not None and f == tool else margin) for f, r in rs.spheres]
+    centres = ca.horzcat(*(rs.sphere_T[i][:3, 3] for i in keep))  # (3, S) world
+    tool_frame = rs.manip.tool_frame
+    lower = [r + (tool_margin if tool_margin is not None and f == tool_frame else margin)
+             for f, r in (rs.spheres[i] for i in keep)]
     for b in boxes:
         Tinv = np.linalg.inv(b.T)
         rows.add_all(box_sdf_columns(ca.DM(Tinv[:3, :3]) @ centres, Tinv[:3, 3], np.asarray(b.size) / 2), lower,

@@ -50,6 +50,7 @@ from rlgp_exec.planning.nlp.factors import (
 )
 from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function, upper_arm_spheres
 from rlgp_exec.planning.nlp.keyframe_seeds import attempt_guess
+from rlgp_exec.planning.nlp.pick_fingers import finger_set, pick_room
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, box_sdf
@@ -135,17 +136,26 @@ def _target_surface(scene: Scene, target: str) -> tuple[FloatArray, tuple[float,
 
 
 def pinned_conflict(
-    model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None
+    model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None,
+    hand: Sequence[tuple[FloatArray, float]] = (), mesh_hand: Sequence[tuple[FloatArray, float]] = (),
+    max_tilt: float = 0.0, palm_hand: Sequence[tuple[FloatArray, float]] = (),
 ) -> str | None:
     """The reason no keyframe NLP of ``actions`` can be feasible, found without building it: a pick pins
     the tool point (its grasp row: ``grasp_point``, GRASP_DEPTH below the object's top centre), so the tool sphere's
-    clearance rows against the fixtures (ARM_MARGIN) and the objects standing where the scene put them
-    (HAND_MARGIN) are numbers there; one below its bound by more than FEAS_TOL fails every start
-    (pick_place_pr2 seed 3: a block 4 cm from another, 16 starts of ~1 s at both tilts, each ending
-    1.99 mm short). None if no pick is pinned into an obstacle."""
+    clearance rows against the fixtures (ARM_MARGIN) are numbers there, and so are the open fingers' rows
+    against the objects standing where the scene put them for each closing the grasp rows allow
+    (``nlp.pick_fingers.pick_room``: ``hand`` with HAND_MARGIN, ``mesh_hand`` with CLEARANCE; without
+    finger spheres, the tool sphere with HAND_MARGIN; ``palm_hand``, the palm's own boxes, with HAND_MARGIN).
+    A fixture row below its bound by more than FEAS_TOL,
+    or every closing short of room by more, fails every start (pick_place_pr2 seed 3: a block 4 cm from
+    another, 16 starts of ~1 s at both tilts, each ending 1.99 mm short). With ``max_tilt`` > 0 the leaning
+    closings are a grid (``pick_fingers.TILT_STEPS``). None if no pick is pinned into an obstacle."""
     manip = model.manipulator(manipulator)
     r_tool = [r for f, r in arm_spheres(model, manip.name) if f == manip.tool_frame]
-    if not r_tool:
+    fingers = [f for f in (finger_set(hand, HAND_MARGIN), finger_set(mesh_hand, CLEARANCE)) if len(f.radii)]
+    if fingers and palm_hand:  # the hand's own body round the pick, as the NLP's rows have it
+        fingers.append(finger_set(palm_hand, HAND_MARGIN))
+    if not r_tool and not fingers:
         return None
     fixture_bx = [b for fx in scene.fixtures for b in fixture_boxes(fx)]
     objs = {o.name: o for o in scene.objects}
@@ -155,12 +165,22 @@ def pinned_conflict(
             o = objs[a.obj]
             top = grasp_point(o.T, o.size)
             still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
-            for b, margin in [*((b, ARM_MARGIN) for b in fixture_bx), *((b, HAND_MARGIN) for b in still)]:
+            tool_rows = [(b, ARM_MARGIN) for b in fixture_bx] + ([] if fingers else [(b, HAND_MARGIN) for b in still])
+            for b, margin in tool_rows if r_tool else []:
                 local = np.linalg.solve(b.T, np.r_[top, 1.0])[:3]
                 d = float(box_sdf(ca.DM(local), np.asarray(b.size) / 2))
                 if d < r_tool[0] + margin - FEAS_TOL:
                     return (f"{a}: its grasp point is {d * 1e3:.1f} mm from {b.name} (the tool sphere needs "
                             f"{(r_tool[0] + margin) * 1e3:.1f} mm)")
+            if fingers:
+                round_sides = o.shape == "cylinder"
+                room, blockers = pick_room(o.T, top, np.asarray(manip.approach, float),
+                                           np.asarray(manip.closing, float), fingers, still,
+                                           0.0 if round_sides else max_tilt, FEAS_TOL, round_sides)
+                if room is None:
+                    sides = "from any side" if round_sides else "across either pair of faces"
+                    return (f"{a}: the open fingers hit {' and '.join(blockers)} at every closing of its grasp "
+                            f"({sides}, tilt <= {max_tilt:.1f} rad)")
         if a.name in ("pick", "place", "drop"):
             moved.add(a.obj)
     return None
@@ -202,14 +222,18 @@ def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatA
     return {m: T for m, T in before.items() if not (a.name in ("pick", "place", "drop") and m == a.obj)}
 
 
-def _objects_clear(rs: RobotSymbols, boxes: list[Box], rows: Rows, tool_margin: float) -> None:
+def _objects_clear(
+    rs: RobotSymbols, boxes: list[Box], rows: Rows, tool_margin: float, skip: tuple[str, ...] = ()
+) -> None:
     """The arm spheres clear of the standing objects' boxes: ARM_MARGIN [m] beyond their radii, the
     tool's sphere ``tool_margin`` [m]. A pick pins the tool point inside the grasped object: with
     ARM_MARGIN its sphere (radius 0.035 m on the PR2) would need 5 cm from a neighbour's face, which no
     grasp of a 5 cm block 7.5 cm from another has (pick_place_pr2 seed 3 missed it by 0.3 mm), while
     the real fingers (meshes, checked in PyBullet at the keyframe and in the replay) fit between them;
-    a pick passes HAND_MARGIN, the open hand's margin."""
-    box_clear(rs, boxes, rows, margin=ARM_MARGIN, tool_margin=tool_margin)
+    a pick passes HAND_MARGIN, the open hand's margin, or ``skip`` the tool (and palm) frames where finger
+    (and palm box) spheres of their own stand for the hand round the tool point (a block 1 cm from its
+    neighbours: the fingers close across its free sides, which the tool sphere cannot tell from the others)."""
+    box_clear(rs, boxes, rows, margin=ARM_MARGIN, tool_margin=tool_margin, skip=skip)
 
 
 def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
@@ -316,6 +340,7 @@ def _build(
     drawers: dict,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     inner: Sequence[tuple[str, Box]] = (),
+    palm_hand: Sequence[tuple[FloatArray, float]] = (),
 ) -> _Problem:
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
@@ -373,10 +398,15 @@ def _build(
         n0 = len(rows.g)
         still_bx = [replace(b, T=poses[b.name]) for b in still]
         box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
-        _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN)
+        own_hand = a.name == "pick" and bool(hand or mesh_hand)
+        skip = ((rs.manip.tool_frame,) + ((rs.manip.palm_frame,) if palm_hand else ())) if own_hand else ()
+        _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN, skip)
         rows.add_all(self_rows.rows(rs), self_rows.lower, ca.inf)
         rows.add_all(inner_rows.rows(rs), inner_rows.lower, ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
+        if own_hand and palm_hand:
+            points_clear(rs.T_tool, list(palm_hand), _near_site(still_bx, site, r_site + FINGER_REACH), rows,
+                         margin=HAND_MARGIN)
         if hand:
             finger_bx = [b for c, v in drawers.items() for b in v.boxes(openings[c], knob=not (at_knob and c == a.obj))]
             # the open fingers keep the graph's clearance (and a little) from fixtures and standing objects:
@@ -555,6 +585,7 @@ def solve_keyframes(
     cache: dict | None = None,
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     inner: Sequence[tuple[str, Box]] = (),
+    palm_hand: Sequence[tuple[FloatArray, float]] = (),
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
@@ -565,7 +596,9 @@ def solve_keyframes(
     ``mesh_hand``: spheres on the fingers' mesh shapes (``nlp.hand.mesh_finger_spheres``), kept off the
     objects only; ``self_spheres``: spheres on the arm (``nlp.hand.arm_link_spheres``), kept off the ``body`` boxes
     (``nlp.hand.body_obstacles``), the upper arm's (``nlp.hand.upper_arm_spheres``) off the ``inner`` ones too
-    (``nlp.hand.inner_obstacles``: the chest and the other arms' shoulders).
+    (``nlp.hand.inner_obstacles``: the chest and the other arms' shoulders). ``palm_hand``: spheres on the palm's
+    box shapes (``nlp.pick_fingers.palm_box_spheres``), which at a pick stand for the palm's arm sphere
+    against the standing objects, as the fingers' spheres stand for the tool's.
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
@@ -588,7 +621,7 @@ def solve_keyframes(
             raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
         if a.name == "drop" and a.target not in drawers:
             raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
-    conflict = pinned_conflict(model, scene, actions, manipulator)
+    conflict = pinned_conflict(model, scene, actions, manipulator, hand, mesh_hand, max_tilt, palm_hand)
     if conflict is not None:
         log.info("keyframes: infeasible before any start: %s", conflict)
         return KeyframeResult(False, np.zeros((0, model.nq)), (), (), math.inf, math.inf,
@@ -599,7 +632,7 @@ def solve_keyframes(
     if prob is None:
         prob = _build(
             model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers,
-            mesh_hand, inner,
+            mesh_hand, inner, palm_hand,
         )
         if cache is not None:  # one sequence at a time: its tilts share the NLP
             cache.clear()
