@@ -78,12 +78,23 @@ def test_gnpp_refuses_a_drawer_task_naming_what_is_missing_and_who_has_it():
 
 
 @pytest.mark.parametrize("name", ["tower_pr2", "hanoi_pr2"])
-def test_rlgp_refuses_a_stacking_task_and_names_gnpp(name):
+def test_stacking_tasks_need_the_stack_action_which_both_planners_have(name):
+    scene = load_scene(SCENES / f"{name}.toml")
+    assert "stack" in needed_actions(scene)
+    for planner in ("rlgp", "gnpp_trn"):
+        assert "stack" in CAPABILITIES[planner].actions
+    refuse(scene, "rlgp")  # accepted: R-LGP drives the base and stacks
+
+
+def test_a_kind_missing_from_a_planner_is_refused_naming_it_and_who_has_it(monkeypatch):
+    """With stack taken out of R-LGP's entry, a tower is refused at once, naming GNPP (the table is what decides)."""
+    from rlgp_exec.planning import capabilities
     from rlgp_exec.planning.rlgp import plan_scene
 
-    scene = load_scene(SCENES / f"{name}.toml")
+    without = CAPABILITIES["rlgp"]._replace(actions=CAPABILITIES["rlgp"].actions - {"stack"})
+    monkeypatch.setitem(capabilities.CAPABILITIES, "rlgp", without)
     with pytest.raises(TaskRefusedError, match=r"rlgp: no stack action \(stack for \(on .*use --planner gnpp"):
-        plan_scene(scene)
+        plan_scene(load_scene(SCENES / "tower_pr2.toml"))
 
 
 def test_gnpp_on_the_pr2_refuses_objects_beyond_the_arms_reach_from_the_start_base():
@@ -282,8 +293,8 @@ def test_memory_stays_bounded_on_fifty_objects():
 
 def test_a_refusal_is_a_scene_error_naming_the_file_and_the_table():
     with pytest.raises(SceneError) as e:
-        refuse(load_scene(SCENES / "tower_pr2.toml"), "lgp")
-    assert (e.value.source, e.value.where) == ("tower_pr2.toml", "[goal]")
-    assert e.value.detail.startswith("lgp: no stack action")
+        refuse(load_scene(SCENES / "table_clearing_hsr.toml"), "gnpp_trn")
+    assert (e.value.source, e.value.where) == ("table_clearing_hsr.toml", "[goal]")
+    assert e.value.detail.startswith("gnpp_trn: no drawer actions")
     with pytest.raises(RlgpError, match="no capability entry for planner 'nope'; valid: "):
         refuse(load_scene(SCENES / "tower_pr2.toml"), "nope")

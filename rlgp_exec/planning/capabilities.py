@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS
 from rlgp_exec.scene import Scene
 
 __all__ = [
@@ -55,7 +56,7 @@ class Capability(NamedTuple):
     suggest: str  # the planner name a refusal suggests for this family
 
 
-_RLGP = Capability(frozenset({"pick", "place", "take_knob", "open_drawer", "close_drawer", "drop"}), _ROBOTS, "rlgp")
+_RLGP = Capability(frozenset(GEOMETRIC_ACTIONS), _ROBOTS, "rlgp")  # R-LGP's layers read planning.actions
 _GNPP = Capability(frozenset({"pick", "place", "stack"}), frozenset({"hsr"}), "gnpp")
 
 #: planner name -> what it can express; GNPP's variants share one entry

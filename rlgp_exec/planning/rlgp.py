@@ -11,10 +11,11 @@ number of objects instead of their orderings. A candidate whose keyframes fail i
 (``nlp.keyframe_chunks``) forbids that prefix to the candidates after it. The baseline ("lgp", our
 stand-in for RHH-LGP) uses the planar distance between sites instead, from the same search.
 
-Geometric layers available here: pick, place (on regions and fixtures), and the drawer actions
-take_knob, open_drawer, close_drawer, drop (their site is the knob, or the open drawer's interior).
-Candidates with other actions (stack, pick_from_drawer) are skipped with a reason; the result says so
-when nothing else remains.
+Geometric layers available here (``planning.actions``): pick, place (on regions and fixtures), stack
+(into a slot region, or onto a movable object's top face, where the plan left it; its site is that
+face), and the drawer actions take_knob, open_drawer, close_drawer, drop (their site is the knob, or the
+open drawer's interior). Candidates with other actions (pick_from_drawer) are skipped with a reason; the
+result says so when nothing else remains.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, kind
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, using
 from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
@@ -54,7 +56,6 @@ PER_ACTION = 1.0
 UNREACHABLE = 1e3
 TIME_BUDGET_S = 90.0  # [s] CPU time (``budget.cpu_clock``) a plan call may spend, every stage included
 SEARCH_WEIGHT = 1.25  # weighted A*: a first candidate within 1.25 times the cheapest, in far fewer expansions
-GEOMETRIC_ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
 
 
 def to_actions(plan: Sequence[GroundAction]) -> list[Action] | str:
@@ -66,7 +67,7 @@ def to_actions(plan: Sequence[GroundAction]) -> list[Action] | str:
         if a.name in DRAWER_ACTIONS:
             out.append(Action(a.name, a.args[1]))
         else:
-            out.append(Action(a.name, a.args[1], a.args[2] if a.name in ("place", "drop") else None))
+            out.append(Action(a.name, a.args[1], a.args[2] if kind(a.name).target != "none" else None))
     return out
 
 
@@ -88,6 +89,9 @@ def _site(
         v, o = geo.drawers[a.args[2]], scene.object(a.args[1])
         T, _ = v.drop_rect(max(openings[a.args[2]], v.travel), max(o.size[:2]) / 2)
         return np.array([T[0, 3], T[1, 3], v.rim_z(openings[a.args[2]]) + o.size[2]])
+    if a.name == "stack" and a.args[2] in where:  # on the top face of the object below, where it is now
+        below = scene.object(a.args[2])
+        return where[below.name] + np.array([0.0, 0.0, below.size[2] / 2 + scene.object(a.args[1]).size[2]])
     surface = surfaces.get(a.args[2]) if surfaces is not None else None
     if surface is None:
         surface = _target_surface(scene, a.args[2])
@@ -164,7 +168,7 @@ class RGCost:
         openings = _after(self.geo, action, context.openings)
         there = _site(self.geo, action, context.objects, openings, self.surfaces)
         objects = context.objects
-        if action.name in ("place", "drop", "stack"):
+        if action.name in RELEASES:
             o = action.args[1]
             objects = {**objects, o: there - np.array([0.0, 0.0, self.scene.object(o).size[2] / 2])}
         return PER_ACTION + self._cost(context.here, there), _Where(there, objects, openings)

@@ -202,8 +202,9 @@ def closing_bounds(max_tilt: float) -> tuple[float, float]:
     return (-ca.inf, ca.inf) if max_tilt <= 0.0 else (0.0, 0.0)
 
 
-def inside_rectangle(p_xy: ca.SX, T: FloatArray, half: tuple[float, float], rows: Rows) -> None:
-    """A world point's x, y inside a rectangle of half extents ``half`` centred on T's origin (its axes)."""
+def inside_rectangle(p_xy: ca.SX, T: FloatArray | ca.SX, half: tuple[float, float], rows: Rows) -> None:
+    """A world point's x, y inside a rectangle of half extents ``half`` centred on T's origin (its axes);
+    T (4, 4) a number or an expression (a support placed at an earlier keyframe)."""
     R2 = T[:2, :2]
     lx = R2[0, 0] * (p_xy[0] - T[0, 3]) + R2[1, 0] * (p_xy[1] - T[1, 3])
     ly = R2[0, 1] * (p_xy[0] - T[0, 3]) + R2[1, 1] * (p_xy[1] - T[1, 3])

@@ -33,6 +33,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
@@ -80,17 +81,18 @@ FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) t
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 CURVATURE_FREE = ("clearance", "base footprint")  # rows (by label ending) whose curvature IPOPT's Hessian leaves out
-ACTIONS = ("pick", "place", "take_knob", "open_drawer", "close_drawer", "drop")
+ACTIONS = GEOMETRIC_ACTIONS
 DRAWER_ACTIONS = ("take_knob", "open_drawer", "close_drawer")
 KIND = {"pick": "grasp", "place": "placement", "take_knob": "knob grasp", "open_drawer": "knob",
-        "close_drawer": "knob", "drop": "drop"}
+        "close_drawer": "knob", "drop": "drop", "stack": "stacking"}
+STACK_SLACK = 0.01  # [m] a stacked object's centre may stray this far past the support's footprint less its own
 
 
 @dataclass(frozen=True)
 class Action:
     name: str  # one of ACTIONS
     obj: str  # the object; the cabinet for take_knob, open_drawer, close_drawer
-    target: str | None = None  # place: a region or a fixture; drop: the cabinet
+    target: str | None = None  # place: a region or a fixture; stack: a region or a movable; drop: the cabinet
 
     def __str__(self) -> str:
         return f"({self.name} {self.obj}{' ' + self.target if self.target else ''})"
@@ -190,7 +192,8 @@ def _site_disc(
     scene: Scene, a: Action, poses: dict[str, FloatArray], drawers: dict, openings: dict[str, float]
 ) -> tuple[FloatArray, float]:
     """Where action a's hand goes, as a disc in the world plane: (centre x y (2,), radius [m]); the
-    object's footprint for a pick, the target rectangle for a place or drop, the knob for a drawer."""
+    object's footprint for a pick (or a stack onto it), the target rectangle for a place or drop, the knob
+    for a drawer."""
     if a.name == "pick":
         return poses[a.obj][:2, 3], float(np.hypot(*scene.object(a.obj).size[:2])) / 2
     if a.name in DRAWER_ACTIONS or a.target is None:
@@ -198,6 +201,8 @@ def _site_disc(
     if a.name == "drop":
         T, half = drawers[a.target].drop_rect(max(openings[a.target], drawers[a.target].travel), 0.0)
         return T[:2, 3], float(np.hypot(*half))
+    if a.name == "stack" and a.target in poses:  # onto a movable: its footprint (where the scene put it)
+        return poses[a.target][:2, 3], float(np.hypot(*scene.object(a.target).size[:2])) / 2
     T, half, _ = _target_surface(scene, a.target)
     return T[:2, 3], float(np.hypot(*half))
 
@@ -219,7 +224,7 @@ def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatA
     the drawer moved with it)."""
     if a.name in ("open_drawer", "close_drawer"):
         return dict(after)
-    return {m: T for m, T in before.items() if not (a.name in ("pick", "place", "drop") and m == a.obj)}
+    return {m: T for m, T in before.items() if not (a.name in MOVES_OBJECT and m == a.obj)}
 
 
 def _objects_clear(
@@ -364,6 +369,7 @@ def _build(
     # half diagonal [m])
     placed: dict[str, tuple[ca.SX, FloatArray, float]] = {}
     placed_by: dict[str, tuple[int, ...]] = {}  # object -> the keyframes its placed pose reads (place, pick)
+    tops: dict[str, FloatArray] = {}  # object set down at a keyframe -> its top centre as targeted (world [m])
     held: str | None = scene.start.held  # the start's grasp: T_tool_obj is fixed, the kinematic switch
     knob: str | None = None
     grasp: ca.SX | ca.DM | None = None if held is None else ca.DM(scene.start.T_tool_obj)
@@ -404,6 +410,8 @@ def _build(
         rows.add_all(self_rows.rows(rs), self_rows.lower, ca.inf)
         rows.add_all(inner_rows.rows(rs), inner_rows.lower, ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
+        if a.name == "stack" and a.target in placed:  # the support stands where an earlier keyframe put it
+            site, r_site = placed[a.target][1], placed[a.target][2]
         if own_hand and palm_hand:
             points_clear(rs.T_tool, list(palm_hand), _near_site(still_bx, site, r_site + FINGER_REACH), rows,
                          margin=HAND_MARGIN)
@@ -413,7 +421,7 @@ def _build(
             # the vertical approach from above then starts from a configuration the graph accepts. Only boxes the
             # fingers can reach from the action's site have rows (the others hold wherever the tool meets its site)
             r_tool = r_site  # where the tool can be: in the held object, whose centre is on the site
-            if a.name in ("place", "drop"):
+            if a.name in RELEASES:
                 r_tool += float(np.linalg.norm(objs[a.obj].size)) / 2
             reach = r_tool + hand_reach + HAND_MARGIN + REACH_SLACK
             near_bx = _near_site(fixture_bx + still_bx, site, reach)
@@ -460,7 +468,7 @@ def _build(
             held, picked_at = a.obj, k
             placed.pop(a.obj, None)
             targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
-        elif a.name in ("place", "drop"):
+        elif a.name in RELEASES:
             if held != a.obj or grasp is None or a.target is None:
                 raise RlgpError(f"keyframe NLP: {a} without holding {a.obj} (holding {held})")
             o = objs[a.obj]
@@ -471,7 +479,17 @@ def _build(
             aux.append((P, ca.vec(T_hand_obj[:3, :4]), (k, *couples[k])))
             labels += [f"{a} pose"] * (len(rows.g) - n0)
             n0 = len(rows.g)
-            if a.name == "place":
+            if a.name == "stack" and a.target in objs:  # on the support's top face, wherever it stands now
+                b = objs[a.target]
+                T_below = placed[a.target][0] if a.target in placed else poses[a.target]
+                half_b = (max((b.size[0] - max(o.size[:2])) / 2, 0.0) + STACK_SLACK,
+                          max((b.size[1] - max(o.size[:2])) / 2, 0.0) + STACK_SLACK)
+                inside_rectangle(T_obj[:2, 3], T_below, half_b, rows)
+                rows.add(T_obj[2, 3] - (T_below[2, 3] + b.size[2] / 2 + o.size[2] / 2 + PLACE_LIFT), 0.0, 0.0)
+                rows.add(T_obj[2, 2], 0.999, ca.inf)
+                top = tops.get(a.target, poses[a.target][:3, 3] + np.array([0.0, 0.0, b.size[2] / 2]))
+                targets.append(top + np.array([0.0, 0.0, o.size[2]]))
+            elif a.name in SETS_DOWN:
                 T_tgt, half, z_surf = _target_surface(scene, a.target)
                 margin = max(o.size[0], o.size[1]) / 2
                 inside_rectangle(T_obj[:2, 3], T_tgt, (max(half[0] - margin, 0.0), max(half[1] - margin, 0.0)), rows)
@@ -491,12 +509,13 @@ def _build(
                 gap = DROP_GAP if a.name == "drop" else PLACE_GAP
                 rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
-            if a.name == "place":  # a dropped object falls: where it lands is not this expression
-                placed[a.obj] = (T_obj, *_site_disc(scene, a, poses, drawers, openings))
+            if a.name in SETS_DOWN:  # a dropped object falls: where it lands is not this expression
+                placed[a.obj] = (T_obj, site, r_site)
+                tops[a.obj] = np.asarray(targets[-1], float)  # its top centre, as the seeds aim (world [m])
                 placed_by[a.obj] = (k, *couples[k])
             moved.add(a.obj)
             held, grasp, picked_at = None, None, None
-        if lift_room > 0.0 and a.name in ("pick", "place", "drop") and lift_name.endswith("lift_joint"):
+        if lift_room > 0.0 and a.name in MOVES_OBJECT and lift_name.endswith("lift_joint"):
             rows.add(Z[3, k], -ca.inf, float(ik.hi[3]) - lift_room)
         labels += [f"{a} {KIND[a.name]}"] * (len(rows.g) - n0)
     row_keyframe += [K - 1] * (len(rows.g) - len(row_keyframe))

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rlgp_exec.planning.actions import RELEASES
 from rlgp_exec.planning.drawers import DrawerView
 from rlgp_exec.robot.model import FloatArray, RobotModel
 
@@ -43,7 +44,7 @@ def object_poses_after(
         T_tool = model.fk(keyframes[k], tool)
         if a.name == "pick":
             held_T = np.linalg.inv(T_tool) @ cur[a.obj]
-        elif a.name in ("place", "drop") and held_T is not None:
+        elif a.name in RELEASES and held_T is not None:
             cur[a.obj] = T_tool @ held_T
             if a.name == "drop" and a.target is not None and sizes is not None:
                 v = drawers[a.target]
