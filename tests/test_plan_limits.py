@@ -90,4 +90,6 @@ def test_progress_shows_each_candidate_and_its_outcome(capsys):
     assert main(["plan", str(SORTING)]) == 0
     err = capsys.readouterr().err
     lines = [ln for ln in err.splitlines() if ln.startswith("  .. rlgp candidate ")]
-    assert lines and lines[0].startswith("  .. rlgp candidate 0 (pick ") and lines[-1].endswith(": ok"), err
+    # each candidate twice: when its geometry starts (its length and search effort), and how it ended
+    assert lines and lines[0].startswith("  .. rlgp candidate 0: 4 actions after "), err
+    assert lines[1].startswith("  .. rlgp candidate 0 (pick ") and lines[-1].endswith(": ok"), err
