@@ -1,7 +1,7 @@
 """Generated scenes: sorting N blocks onto two trays, for ``bench scaling`` and for tests.
 
 ``sorting_scene(robot, n, seed)`` is the R-LGP paper's sorting task grown to ``n`` blocks: a middle
-table (PR2: 1.2 x 1.6 m; HSR: 1.0 x 0.6 m, every block within the arm's reach from a long side), two
+table (PR2: 1.2 x 1.6 m; HSR: 1.0 x 0.5 m, every block within the arm's reach from a long side), two
 side tables ~2 m (PR2) / ~1.5 m (HSR) away carrying a blue and a green tray, blocks alternately blue
 and green, placed by :func:`randomize` with ``seed``, ``GAP`` apart. Same arguments, same scene.
 """
@@ -33,9 +33,9 @@ def _layout(robot: str) -> dict[str, Any]:
         }
     return {
         "base": [0.0, -1.0, 1.5708], "joints": {},
-        "mid": ([1.0, 0.6, 0.45], [0.0, 0.0, 0.225, 0.0]),
+        "mid": ([1.0, 0.5, 0.45], [0.0, 0.0, 0.225, 0.0]),
         "sides": ([0.5, 0.5, 0.45], [1.5, -0.7], [-1.5, 0.7]), "tray": [0.25, 0.25],
-        "block": [0.05, 0.05, 0.08], "x": [-0.42, 0.42], "y": [-0.22, 0.22],
+        "block": [0.05, 0.05, 0.08], "x": [-0.42, 0.42], "y": [-0.17, 0.17],
     }
 
 
