@@ -186,8 +186,12 @@ def _worst_ratio(spline: ConstAccelPiece, limits: JointLimits, base: bool) -> tu
     """The worst velocity and acceleration limit ratios over dense samples."""
     # evenly spaced samples, plus each gridpoint's left limit: PCHIP's second derivative jumps at
     # the waypoints, and the waypoints are gridpoints
-    ts = np.linspace(0.0, spline.duration, CHECK_PER_INTERVAL * (len(spline._tt) - 1) + 1)
-    ts = np.r_[ts, np.maximum(spline._tt[1:] - 1e-9, 0.0)]
+    # CHECK_PER_INTERVAL in every gridpoint interval (evenly over the duration, a long interval was
+    # sampled too coarsely to see its overshoot)
+    tt = np.asarray(spline._tt, float)
+    frac = np.arange(CHECK_PER_INTERVAL) / CHECK_PER_INTERVAL
+    ts = np.r_[(tt[:-1, None] + np.diff(tt)[:, None] * frac).ravel(), tt[-1]]
+    ts = np.r_[ts, np.maximum(tt[1:] - 1e-9, 0.0)]
     q, dq, ddq = spline(ts), spline(ts, 1), spline(ts, 2)
     v_ratio = np.abs(dq) / limits.velocity
     a_lim = limits.acceleration.copy()
