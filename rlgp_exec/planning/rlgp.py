@@ -174,11 +174,7 @@ class RGCost:
         return PER_ACTION + self._cost(context.here, there), _Where(there, objects, openings)
 
     def _goal_site(self, o: str, s: str, context: _Where) -> FloatArray:
-        kind = self.kind[s]
-        if kind == "stack":  # on top of the support object, wherever the plan has left it
-            below = self.scene.object(s)
-            z = context.objects[s][2] + below.size[2] / 2 + self.scene.object(o).size[2]
-            return np.array([context.objects[s][0], context.objects[s][1], z])
+        kind = self.kind[s]  # a stack's site is on its support object, wherever the plan has left it
         openings = context.openings
         if kind == "drop":
             openings = {**openings, s: self.geo.drawers[s].travel}
