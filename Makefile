@@ -27,6 +27,7 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check rlgp_exec robots perception sim tests tools
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # Re-record the exact versions after a deliberate upgrade (then run `make test`).
 lock:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.camera import FloatArray, PerceptionError
+from rlgp_exec.perception.camera import FloatArray, PerceptionError
 
 __all__ = ["DETECTORS", "DetectionResult", "ImageStatus", "TagDetection", "TagDetector", "as_gray"]
 

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from perception.camera import FloatArray
-from perception.pipeline import Perception, PerceptionReport
+from rlgp_exec.perception.camera import FloatArray
+from rlgp_exec.perception.pipeline import Perception, PerceptionReport
 from rlgp_exec.robot.head import look_at_q, pointing_error
 from rlgp_exec.robot.model import RobotModel
 from rlgp_exec.scene import Scene

@@ -16,11 +16,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from perception.camera import CameraIntrinsics, FloatArray, PerceptionError
-from perception.detector import ImageStatus, TagDetector
-from perception.pose import estimate_tag_pose
-from perception.registry import TagRegistry
-from perception.tracker import ObjectTracker, Observation
+from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray, PerceptionError
+from rlgp_exec.perception.detector import ImageStatus, TagDetector
+from rlgp_exec.perception.pose import estimate_tag_pose
+from rlgp_exec.perception.registry import TagRegistry
+from rlgp_exec.perception.tracker import ObjectTracker, Observation
 from rlgp_exec.scene import Scene
 
 __all__ = ["MAX_TILT_RAD", "Perception", "PerceptionReport", "SceneUpdate", "scene_from_estimates"]

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.camera import CameraIntrinsics, FloatArray
-from perception.detector import TagDetection
+from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray
+from rlgp_exec.perception.detector import TagDetection
 
 __all__ = ["AMBIGUITY_RATIO", "TagPose", "estimate_tag_pose", "rotation_angle"]
 

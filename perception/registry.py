@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from perception.camera import FloatArray, PerceptionError
+from rlgp_exec.perception.camera import FloatArray, PerceptionError
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import T_object_tag
 

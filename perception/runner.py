@@ -10,12 +10,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from perception.camera import CameraIntrinsics, PerceptionError, camera_for_robot
-from perception.detector import TagDetector
-from perception.look_around import look_around
-from perception.pipeline import Perception, scene_from_estimates
-from perception.pose import estimate_tag_pose, rotation_angle
-from perception.registry import TagRegistry
+from rlgp_exec.perception.camera import CameraIntrinsics, PerceptionError, camera_for_robot
+from rlgp_exec.perception.detector import TagDetector
+from rlgp_exec.perception.look_around import look_around
+from rlgp_exec.perception.pipeline import Perception, scene_from_estimates
+from rlgp_exec.perception.pose import estimate_tag_pose, rotation_angle
+from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.types import pose_matrix
 
@@ -103,8 +103,8 @@ def perceive_scene(
 ) -> SimPerception:
     """Build ``scene`` in PyBullet, optionally move its objects away from the file's poses, look around
     with the robot's head camera and compare the perceived poses with the simulated truth."""
-    from sim.camera import ImageEffects, SimCapture
-    from sim.world import build_world
+    from rlgp_exec.perception.rendered_camera import ImageEffects, SimCapture
+    from rlgp_exec.world.pybullet_world import build_world
 
     world = build_world(scene)
     try:

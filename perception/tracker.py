@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.camera import FloatArray
+from rlgp_exec.perception.camera import FloatArray
 
 __all__ = ["ObjectEstimate", "ObjectTracker", "Observation"]
 

@@ -13,10 +13,11 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-
-from rlgp_exec.robot.model import FloatArray
+from numpy.typing import NDArray
 
 __all__ = ["BufferedFunction"]
+
+FloatArray = NDArray[np.float64]
 
 
 class BufferedFunction:

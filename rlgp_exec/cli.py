@@ -72,7 +72,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)  # before the renderer loads: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
-    from sim.render import render_scene_png
+    from rlgp_exec.world.render import render_scene_png
 
     out = render_scene_png(scene, args.png, width=args.width, height=args.height, view=args.view)
     print(f"{scene.name}: wrote {out}")
@@ -83,15 +83,15 @@ def cmd_show(args: argparse.Namespace) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     task = args.task
     if task == "timing":
-        from rlgp_exec.timing.bench import run_timing_bench
+        from rlgp_exec.bench.timing import run_timing_bench
 
         result = run_timing_bench(seed=args.seed or 0)
     elif task == "perception":
-        from perception.bench import run_perception_bench
+        from rlgp_exec.bench.perception import run_perception_bench
 
         result = run_perception_bench(seed=args.seed or 0)
     elif task == "reachability":
-        from rlgp_exec.reach.bench import run_reachability_bench
+        from rlgp_exec.bench.reach import run_reachability_bench
 
         if not args.scene_file:
             raise RlgpError("bench reachability needs a scene: rlgp-exec bench reachability SCENE [--samples N]")
@@ -99,23 +99,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
             args.scene_file, samples=args.samples, seed=args.seed or 0, workers=args.workers
         )
     elif task == "camera":
-        from rlgp_exec.executive.camera_bench import SCENE, run_camera_bench
+        from rlgp_exec.bench.camera import SCENE, run_camera_bench
 
         result = run_camera_bench(Path(args.scene_file) if args.scene_file else SCENE, seed=args.seed or 0)
     elif task == "hal":
-        from rlgp_exec.hal.bench import run_hal_bench
+        from rlgp_exec.bench.hal import run_hal_bench
 
         result = run_hal_bench()
     elif task == "executive":
+        from rlgp_exec.bench.executive import run_executive_bench
         from rlgp_exec.demo import scene_path
-        from rlgp_exec.executive.bench import run_executive_bench
 
         task_scene = Path(args.scene_file) if args.scene_file else scene_path("sorting_hsr")
         result = run_executive_bench(task_scene, task_scene, n_faults=args.faults, seed=args.seed or 0)
     elif task == "scaling":
         return _bench_scaling(args)
     elif Path(task).suffix == ".toml":
-        from rlgp_exec.planning.bench import run_planner_bench
+        from rlgp_exec.bench.planners import run_planner_bench
 
         planners = (args.planners or "rlgp,lgp").split(",")
         result = run_planner_bench(
@@ -141,7 +141,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _bench_scaling(args: argparse.Namespace) -> int:
-    from rlgp_exec.planning.scaling_bench import parse_counts, run_scaling_bench
+    from rlgp_exec.bench.scaling import parse_counts, run_scaling_bench
 
     def progress(rec: dict, done: int, total: int) -> None:
         spent = rec["cpu_s"] if rec["cpu_s"] is not None else rec["wall_s"]
@@ -168,7 +168,7 @@ def _bench_scaling(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- sim-robot
 def cmd_sim_robot(args: argparse.Namespace) -> int:
-    from sim.robot_server import main as server_main
+    from rlgp_exec.sim.robot_server import main as server_main
 
     argv = ["--robot", args.robot, "--transport", args.transport]
     for flag, value in (
@@ -184,7 +184,7 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
     import subprocess
 
     from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT
-    from sim.robot_process import camera_command
+    from rlgp_exec.sim.robot_process import camera_command
 
     if args.transport != "zenoh" or not args.scene:
         raise RlgpError("sim-robot --camera publishes over zenoh and renders a scene: give --transport zenoh --scene")
@@ -243,7 +243,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.perceive:
         if args.backend != "sim":
             raise RlgpError("--perceive renders the head camera in simulation: use it with --backend sim")
-        from perception.runner import perceive_scene
+        from rlgp_exec.perception.runner import perceive_scene
 
         res = perceive_scene(scene)
         if res.missing:
@@ -425,8 +425,8 @@ def cmd_perceive(args: argparse.Namespace) -> int:
     if args.image:
         import numpy as np
 
-        from perception.camera import CameraIntrinsics
-        from perception.runner import perceive_image
+        from rlgp_exec.perception.camera import CameraIntrinsics
+        from rlgp_exec.perception.runner import perceive_image
 
         if not args.intrinsics:
             raise RlgpError("--image needs --intrinsics W,H,fx,fy,cx,cy (and --tag-size)")
@@ -444,7 +444,7 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         raise RlgpError("give a SCENE file, or --image FILE --intrinsics W,H,fx,fy,cx,cy")
     if args.plan:
         return _perceive_and_plan(args)
-    from perception.runner import perceive_scene
+    from rlgp_exec.perception.runner import perceive_scene
     from rlgp_exec.scene import load_scene
 
     scene = load_scene(args.scene)

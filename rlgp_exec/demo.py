@@ -4,7 +4,7 @@ and transport boundary.
 The world: the scene file with its tagged objects moved up to 4 cm away (the file is wrong, as on a
 real robot). Sense: the head camera looks around (rendered images, AprilTags, PnP, fusion) and the
 perceived scene replaces the file's poses. Robot: ``sim-robot`` runs the true world in its own process
-and speaks the HSR's Zenoh interface, its head camera (``sim.camera_node``) rendered in a process of
+and speaks the HSR's Zenoh interface, its head camera (``rlgp_exec.sim.camera_node``) rendered in a process of
 its own and published as ROS 2 images. Camera: the executive's camera source reads those images over
 Zenoh, points the head at the task's objects and reports each one's error against the true world.
 Executive: SENSE (the robot's state; object poses from the server's mocap stream: the camera source does
@@ -76,7 +76,7 @@ def _stage(report: DemoReport, name: str, fn: Callable[[], str]) -> bool:
 
 def scene_path(name: str) -> Path:
     """A shipped scene file by name (``sim/scenes/<name>.toml``)."""
-    import sim
+    from rlgp_exec import sim
 
     path = Path(sim.__file__).resolve().parent / "scenes" / f"{name}.toml"
     if not path.is_file():
@@ -122,15 +122,15 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
 
     from rlgp_exec.scene import load_scene
     from rlgp_exec.scene.serialize import scene_to_toml
-    from sim.render import render_world
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
+    from rlgp_exec.world.render import render_world
 
     out.mkdir(parents=True, exist_ok=True)
     report = DemoReport(scene_name)
     state: dict[str, object] = {}
 
     def load() -> str:
-        from perception.runner import perturbed_scene
+        from rlgp_exec.perception.runner import perturbed_scene
 
         scene = load_scene(scene_path(scene_name))
         truth = perturbed_scene(scene, PERTURB_M, seed)
@@ -156,7 +156,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         return "true world built (no collisions); overview and head-camera images rendered"
 
     def perceive() -> str:
-        from perception.runner import perceive_scene
+        from rlgp_exec.perception.runner import perceive_scene
 
         res = perceive_scene(state["scene"], perturb_m=PERTURB_M, seed=seed)  # type: ignore[arg-type]
         if res.missing:
@@ -166,7 +166,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         return f"{res.views} views; objects {PERTURB_M * 100:.0f} cm off the file, found within {errs}"
 
     def robot() -> str:
-        from sim.robot_process import RobotProcess
+        from rlgp_exec.sim.robot_process import RobotProcess
 
         robot = RobotProcess(state["truth_path"], camera=True)  # type: ignore[arg-type]
         state["proc"], state["endpoint"] = robot, robot.endpoint

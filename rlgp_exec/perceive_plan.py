@@ -68,11 +68,11 @@ def perceive_and_plan(
 ) -> list[PerceivePlanReport]:
     """Perceive ``scene_file``'s world once (objects moved by up to ``perturb_m`` [m], seeded), plan on
     the perceived scene with each of ``planners`` and replay each plan in the true world."""
-    from perception.runner import perceive_scene, perturbed_scene
+    from rlgp_exec.perception.runner import perceive_scene, perturbed_scene
     from rlgp_exec.planning.registry import plan as run_planner
     from rlgp_exec.planning.validate import validate_plan
     from rlgp_exec.scene import load_scene
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     scene = load_scene(scene_file)
     truth = perturbed_scene(scene, perturb_m, seed)

@@ -1,1 +1,1 @@
-"""Simulation: PyBullet worlds built from scene files, rendered cameras, the simulated robot server."""
+"""The simulated robot: its servers (Zenoh, CAN), its head-camera node, and the shipped scenes."""

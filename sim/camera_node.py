@@ -1,12 +1,12 @@
 """The simulated robot's head camera on the wire: a process of its own that renders what the robot sees.
 
-    python -m sim.camera_node --robot hsr --scene SCENE [--endpoint tcp/127.0.0.1:7447] [--rate 15] [--jpeg]
+    python -m rlgp_exec.sim.camera_node --robot hsr --scene SCENE [--endpoint tcp/127.0.0.1:7447] [--rate 15] [--jpeg]
 
-A Zenoh client of the simulated robot server (``sim.robot_server``; started with it by ``rlgp-exec sim-robot
+A Zenoh client of the simulated robot server (``rlgp_exec.sim.robot_server``; started with it by ``rlgp-exec sim-robot
 --camera`` or ``RobotProcess(camera=True)``). It subscribes to the robot's joint states and odometry and to
 the simulation's true object poses (the server's ``rlgp/mocap/objects``), loads the same scene for the
 fixtures, and at ``--rate`` Hz puts the robot at its latest measured configuration, renders the head camera
-(PyBullet TinyRenderer, the model of ``perception.camera``) and publishes what the real robot's camera
+(PyBullet TinyRenderer, the model of ``rlgp_exec.perception.camera``) and publishes what the real robot's camera
 driver publishes: ``sensor_msgs/Image`` (rgb8) and ``sensor_msgs/CameraInfo`` (optionally
 ``CompressedImage``, JPEG) on the keys of ``robots/<robot>/zenoh_keys.toml``, stamped with the joint
 state's stamp (the robot's clock). Rendering takes tens of milliseconds: in its own process (at a lower
@@ -31,7 +31,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.camera import camera_for_robot
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.camera_source import StampedHistory
 from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY, drawer_openings
@@ -39,14 +38,15 @@ from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
 from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, load_key_map, session_config
+from rlgp_exec.perception.camera import camera_for_robot
+from rlgp_exec.perception.rendered_camera import hide_floor, render_camera
 from rlgp_exec.scene import load_scene
-from sim.camera import hide_floor, render_camera
-from sim.logs import configure_logging
-from sim.world import build_world
+from rlgp_exec.sim.logs import configure_logging
+from rlgp_exec.world.pybullet_world import build_world
 
 __all__ = ["CameraNode", "main"]
 
-log = logging.getLogger("sim.camera_node")
+log = logging.getLogger("rlgp_exec.sim.camera_node")
 
 STALE_S = 0.25  # [s] wall time: a joint state older than this is not the robot now: render nothing
 ODOM_MATCH_S = 0.006  # [s] odometry this close to the joint state's stamp is the same robot tick
@@ -218,7 +218,7 @@ class CameraNode:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m sim.camera_node", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m rlgp_exec.sim.camera_node", description=__doc__.split("\n\n")[0])
     ap.add_argument("--robot", choices=["hsr", "pr2"], required=True)
     ap.add_argument("--scene", required=True, help="the scene the robot server simulates (its fixtures and objects)")
     ap.add_argument("--endpoint", default=DEFAULT_ENDPOINT, help="the robot server's endpoint")
@@ -236,13 +236,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure_logging(args.verbose)
     os.nice(10)  # the robot's 100 Hz loop comes first when the cores are busy: rendering can wait
     if not 0 < args.rate <= 60:
-        print(f"sim.camera_node: --rate must be in (0, 60] Hz, got {args.rate}", file=sys.stderr)
+        print(f"rlgp_exec.sim.camera_node: --rate must be in (0, 60] Hz, got {args.rate}", file=sys.stderr)
         return 2
     try:
         node = CameraNode(args.robot, args.scene, args.endpoint, args.namespace, args.rate, args.jpeg, args.noise)
         node.start()
     except RlgpError as e:
-        print(f"sim.camera_node: error: {e}", file=sys.stderr)
+        print(f"rlgp_exec.sim.camera_node: error: {e}", file=sys.stderr)
         return 2
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -1,4 +1,4 @@
-"""Logging for the simulated robot's processes (``python -m sim.robot_server``, ``sim.camera_node``)."""
+"""Logging for the simulated robot's processes (``rlgp_exec.sim.robot_server``, ``rlgp_exec.sim.camera_node``)."""
 
 from __future__ import annotations
 

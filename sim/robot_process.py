@@ -1,6 +1,6 @@
 """``RobotProcess``: a ``sim-robot`` server in its own process over Zenoh on a free loopback port — what
 the demo, the benchmarks, the tests and the tools talk to (a real process and transport boundary) — and,
-with ``camera=True``, its head camera (``sim.camera_node``) in a second process."""
+with ``camera=True``, its head camera (``rlgp_exec.sim.camera_node``) in a second process."""
 
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ def free_endpoint() -> str:
 
 def camera_command(robot: str, scene: str | Path, endpoint: str, namespace: str = "", jpeg: bool = False) -> list[str]:
     """The command line of the camera node of the robot server at ``endpoint``."""
-    cmd = [sys.executable, "-m", "sim.camera_node", "--robot", robot, "--scene", str(scene), "--endpoint", endpoint]
+    cmd = [sys.executable, "-m", "rlgp_exec.sim.camera_node", "--robot", robot, "--scene", str(scene)]
+    cmd += ["--endpoint", endpoint]
     if namespace:
         cmd += ["--namespace", namespace]
     return cmd + (["--jpeg"] if jpeg else [])
@@ -42,7 +43,7 @@ def _wait_ready(proc: subprocess.Popen[str], what: str) -> str:
 
 
 class RobotProcess:
-    """Start ``python -m sim.robot_server --transport zenoh`` and wait for it to say it is ready; with
+    """Start ``python -m rlgp_exec.sim.robot_server --transport zenoh`` and wait for it to say it is ready; with
     ``camera``, then its camera node (the scene is needed: the camera renders it)."""
 
     def __init__(
@@ -60,7 +61,7 @@ class RobotProcess:
         cmd = [
             sys.executable,
             "-m",
-            "sim.robot_server",
+            "rlgp_exec.sim.robot_server",
             "--robot",
             robot,
             "--transport",

@@ -1,7 +1,7 @@
 """The simulated robot server: PyBullet physics (DIRECT) behind the robot's own wire interfaces.
 
-    python -m sim.robot_server --robot hsr --transport zenoh [--scene PATH] [--endpoint tcp/127.0.0.1:7447]
-    python -m sim.robot_server --robot hsr --transport can --can-interface socketcan --can-channel vcan0
+    python -m rlgp_exec.sim.robot_server --robot hsr --transport zenoh [--scene PATH] [--endpoint tcp/127.0.0.1:7447]
+    python -m rlgp_exec.sim.robot_server --robot hsr --transport can --can-interface socketcan --can-channel vcan0
 
 Zenoh: the keys and CDR payloads of ``robots/<robot>/zenoh_keys.toml`` (what the Zenoh-ROS 2 bridge
 exposes on the real HSR), joint states / odometry / run-stop at ``--rate`` Hz (100 by default), a
@@ -51,11 +51,11 @@ from rlgp_exec.hal.validate import CommandLimits, RejectCounter
 from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
-from sim.logs import configure_logging
+from rlgp_exec.sim.logs import configure_logging
 
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
-log = logging.getLogger("sim.robot_server")
+log = logging.getLogger("rlgp_exec.sim.robot_server")
 
 PUSH_KEY = "rlgp/sim/push"  # sim only: JSON {"object", "dx", "dy"} moves an object (a test's "someone bumped it")
 MOCAP_EVERY = 5  # ticks between object-pose messages (20 Hz at 100 Hz)
@@ -414,7 +414,7 @@ def build_sim(robot: str, scene_path: str | None) -> SimRobot:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m sim.robot_server", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m rlgp_exec.sim.robot_server", description=__doc__.split("\n\n")[0])
     ap.add_argument("--robot", choices=["hsr", "pr2"], required=True)
     ap.add_argument("--transport", choices=["zenoh", "can"], required=True)
     ap.add_argument("--scene", help="a scene TOML (default: the robot alone on a floor)")
@@ -436,10 +436,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(None if argv is None else list(argv))
     configure_logging(args.verbose)
     if args.transport == "can" and args.robot != "hsr":
-        print(f"sim.robot_server: no CANopen node map for robot {args.robot!r}; valid: hsr", file=sys.stderr)
+        print(f"rlgp_exec.sim.robot_server: no CANopen node map for robot {args.robot!r}; valid: hsr", file=sys.stderr)
         return 2
     if not args.rate > 0:
-        print(f"sim.robot_server: --rate must be > 0, got {args.rate}", file=sys.stderr)
+        print(f"rlgp_exec.sim.robot_server: --rate must be > 0, got {args.rate}", file=sys.stderr)
         return 2
     endpoint = args.endpoint or (None if args.zenoh_config else DEFAULT_ENDPOINT)
     sim = None
@@ -451,14 +451,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.transport == "zenoh":
             server = ZenohRobotServer(sim, endpoint, args.namespace, args.rate, args.zenoh_config)
         else:
-            from sim.robot_server_can import CanRobotServer, open_bus
+            from rlgp_exec.sim.robot_server_can import CanRobotServer, open_bus
 
             server = CanRobotServer(sim, open_bus(args.can_interface, args.can_channel), rate_hz=args.rate)
         server.start()
     except RlgpError as e:
         if sim is not None:
             sim.close()
-        print(f"sim.robot_server: error: {e}", file=sys.stderr)
+        print(f"rlgp_exec.sim.robot_server: error: {e}", file=sys.stderr)
         return 2
     done = threading.Event()
     if threading.current_thread() is threading.main_thread():

@@ -33,11 +33,11 @@ from rlgp_exec.hal.can_nodes import CanMap, CanNode, load_can_map, pack, unpack
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
 from rlgp_exec.hal.validate import CommandLimits, RejectCounter
-from sim.robot_server import RealTimeLoop
+from rlgp_exec.sim.robot_server import RealTimeLoop
 
 __all__ = ["CanRobotServer", "open_bus"]
 
-log = logging.getLogger("sim.robot_server_can")
+log = logging.getLogger("rlgp_exec.sim.robot_server_can")
 
 NMT_STATE = {"PRE-OPERATIONAL": 0x7F, "OPERATIONAL": 0x05, "STOPPED": 0x04}
 NMT_CMD = {0x01: "OPERATIONAL", 0x02: "STOPPED", 0x80: "PRE-OPERATIONAL", 0x81: "RESET", 0x82: "RESET_COMM"}

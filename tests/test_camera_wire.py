@@ -198,10 +198,10 @@ def test_history_gives_the_state_nearest_the_stamp_not_the_latest():
 def test_tags_are_placed_through_the_camera_pose_at_the_images_stamp():
     """The head pans between the picture and its processing: placing the tag through the joint state at
     the image's stamp is accurate, through the latest state it would be far off."""
-    from perception.camera import camera_for_robot
     from rlgp_exec.executive.camera_source import CameraObjects
-    from sim.camera import hide_floor, render_camera
-    from sim.world import build_world
+    from rlgp_exec.perception.camera import camera_for_robot
+    from rlgp_exec.perception.rendered_camera import hide_floor, render_camera
+    from rlgp_exec.world.pybullet_world import build_world
 
     scene = load_scene(SCENE)
     world = build_world(scene)
@@ -244,7 +244,7 @@ def test_tags_are_placed_through_the_camera_pose_at_the_images_stamp():
 
 
 def test_a_jump_moves_an_object_only_once_confirmed():
-    from perception.tracker import ObjectTracker, Observation
+    from rlgp_exec.perception.tracker import ObjectTracker, Observation
 
     def obs(x: float, t: float) -> list[Observation]:
         T = np.eye(4)
@@ -275,7 +275,7 @@ def test_the_simulated_robots_camera_senses_objects_over_zenoh_and_sees_a_push()
 
     from rlgp_exec.executive.runner import RunOptions, connect
     from rlgp_exec.executive.world import ZenohMocap
-    from sim.robot_process import RobotProcess
+    from rlgp_exec.sim.robot_process import RobotProcess
 
     scene = load_scene(SCENE)
     with RobotProcess(SCENE, camera=True) as robot:
@@ -330,7 +330,7 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
     from rlgp_exec.executive.runner import RunOptions, connect
     from rlgp_exec.hal.types import Lifecycle
     from rlgp_exec.scene.serialize import scene_to_toml
-    from sim.robot_process import RobotProcess
+    from rlgp_exec.sim.robot_process import RobotProcess
 
     base = load_scene(SCENE)
     pose = (0.5, -0.35, base.object("block_blue").pose[2], 0.3)
@@ -371,8 +371,8 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
 def test_a_grasped_object_rides_with_the_tool_and_stays_where_it_is_put_down():
     """The gripper closes with the tool at an object's estimate: the object's pose follows the tool frame
     at the latest joint state (no image needed); the gripper opens: it stays where the tool left it."""
-    from perception.tracker import ObjectEstimate
     from rlgp_exec.executive.camera_source import CameraObjects
+    from rlgp_exec.perception.tracker import ObjectEstimate
 
     model, scene = load_robot("hsr"), load_scene(SCENE)
     src = CameraObjects(None, load_key_map("hsr"), model, scene, worker=False)

@@ -24,7 +24,7 @@ from rlgp_exec.hal import CommandStatus, HalError, Lifecycle, RobotState, make_b
 from rlgp_exec.hal import can_nodes as cn
 from rlgp_exec.hal.can_backend import CanBackend, NodeHealth
 from rlgp_exec.hal.sim_physics import SimRobot
-from sim.robot_server_can import CanRobotServer
+from rlgp_exec.sim.robot_server_can import CanRobotServer
 
 log = logging.getLogger(__name__)
 

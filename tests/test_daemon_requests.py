@@ -28,8 +28,8 @@ from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.zenoh_keys import session_config
 from rlgp_exec.scene import load_scene
-from sim.robot_process import free_endpoint
-from sim.robot_server import COMMAND_DEADLINE_S, LOST, SILENT, ZenohRobotServer
+from rlgp_exec.sim.robot_process import free_endpoint
+from rlgp_exec.sim.robot_server import COMMAND_DEADLINE_S, LOST, SILENT, ZenohRobotServer
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "tests" / "data" / "shelf_hsr.toml"
@@ -309,7 +309,7 @@ def test_after_a_stream_stopped_without_its_hold_activate_starts_clean(robot):
     reports the executive silent. The next activate (after the operator's reset) sends a keepalive and
     returns with that fault cleared, so the next task does not fault on it at its first phase."""
     from rlgp_exec.hal import make_backend
-    from sim.robot_server import RealTimeLoop
+    from rlgp_exec.sim.robot_server import RealTimeLoop
 
     server, _ = robot
     hal = make_backend("zenoh", endpoint=server.endpoint, heartbeat_timeout=0.2)

@@ -80,7 +80,7 @@ def test_the_replay_opens_the_drawer_with_the_hand_and_catches_leaving_its_axis(
 
 
 def test_a_dropped_object_lands_in_the_drawer_and_rides_with_it(scene):
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     v = drawer_view(scene, "cabinet")
     world = build_world(scene, tags=False)

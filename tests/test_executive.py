@@ -36,7 +36,7 @@ from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.hal import Lifecycle, make_backend
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene, scene_from_dict, scene_to_dict
-from sim.robot_process import RobotProcess, free_endpoint
+from rlgp_exec.sim.robot_process import RobotProcess, free_endpoint
 
 #: the robot-state watchdog of the functional Zenoh tests [s]. The robot's own, 0.15 s (``RunOptions``), once
 #: fired in CI on a ~0.15 s scheduling gap with both test workers busy (the PR2 test, mid-motion, at the same
@@ -356,7 +356,7 @@ def _push(ep: str, obj: str, dx: float, dy: float) -> None:
     import zenoh
 
     from rlgp_exec.hal.zenoh_keys import session_config
-    from sim.robot_server import PUSH_KEY
+    from rlgp_exec.sim.robot_server import PUSH_KEY
 
     s = zenoh.open(session_config(connect=ep))
     try:

@@ -822,7 +822,7 @@ def test_a_shoulder_panned_further_out_than_allowed_is_a_colfix_violation_and_th
     import pybullet as p
 
     from rlgp_exec.planning.gnpp.geometry import PAN_OUT_MAX
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     scene = _tower(["b1"], ["(on b1 goal_region)"])
     lib = FactorLib(pr2, scene)

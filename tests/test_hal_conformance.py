@@ -1,5 +1,5 @@
 """One conformance suite for every HAL backend: sim (in-process, lock-step), zenoh (against a
-``python -m sim.robot_server`` subprocess, real process and transport boundary) and can (the simulated
+``python -m rlgp_exec.sim.robot_server`` subprocess, real process and transport boundary) and can (the simulated
 CANopen node set in a thread on python-can's virtual bus, which does not cross processes).
 
 Every backend starts in the grasp test scene (sim/robot_server_scene.py): the arm stretched over a stand
@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from rlgp_exec.hal import CommandStatus, GripperCommand, HalError, Lifecycle, RobotInterface, make_backend
-from sim.robot_process import RobotProcess
-from sim.robot_server_scene import GRASP_JOINTS, grasp_scene, write_grasp_scene
+from rlgp_exec.sim.robot_process import RobotProcess
+from rlgp_exec.sim.robot_server_scene import GRASP_JOINTS, grasp_scene, write_grasp_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 HB = 0.25  # heartbeat timeout [s]
@@ -124,7 +124,7 @@ def harness(request, tmp_path) -> Iterator[Harness]:
         import can
 
         from rlgp_exec.hal.sim_physics import SimRobot
-        from sim.robot_server_can import CanRobotServer
+        from rlgp_exec.sim.robot_server_can import CanRobotServer
 
         channel = f"hal-{uuid.uuid4().hex}"
         sim = SimRobot("hsr", grasp_scene())

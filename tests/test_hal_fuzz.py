@@ -102,7 +102,7 @@ def _port() -> int:
 def zenoh_server() -> Iterator[tuple[object, object]]:
     import zenoh
 
-    from sim.robot_server import ZenohRobotServer
+    from rlgp_exec.sim.robot_server import ZenohRobotServer
 
     ep = f"tcp/127.0.0.1:{_port()}"
     sim = SimRobot("hsr")
@@ -181,7 +181,7 @@ def test_zenoh_server_rejects_bad_payloads_without_motion(zenoh_server, case):
 
 def test_zenoh_client_rejects_bad_state_payloads():
     from rlgp_exec.hal import make_backend
-    from sim.robot_server import ZenohRobotServer
+    from rlgp_exec.sim.robot_server import ZenohRobotServer
 
     ep = f"tcp/127.0.0.1:{_port()}"
     sim = SimRobot("hsr")
@@ -216,7 +216,7 @@ def test_zenoh_client_rejects_bad_state_payloads():
 @pytest.fixture(scope="module")
 def can_rig() -> Iterator[tuple[object, can.BusABC, object]]:
     from rlgp_exec.hal import make_backend
-    from sim.robot_server_can import CanRobotServer
+    from rlgp_exec.sim.robot_server_can import CanRobotServer
 
     ch = f"fuzz-{uuid.uuid4().hex}"
     sim = SimRobot("hsr")
@@ -339,7 +339,7 @@ def test_can_drives_fault_when_the_master_goes_silent():
     """The drives' consumer heartbeat (can_nodes.toml's timeout, written by SDO at configure): when the
     master's heartbeat stops, every enabled drive goes to Fault and the robot reports it."""
     from rlgp_exec.hal import make_backend
-    from sim.robot_server_can import CanRobotServer
+    from rlgp_exec.sim.robot_server_can import CanRobotServer
 
     ch = f"silent-{uuid.uuid4().hex}"
     sim = SimRobot("hsr")

@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from perception import (
+from rlgp_exec.bench.perception import look_at
+from rlgp_exec.perception import (
     CameraIntrinsics,
     ImageStatus,
     ObjectTracker,
@@ -26,12 +27,11 @@ from perception import (
     estimate_tag_pose,
     scene_from_estimates,
 )
-from perception.bench import look_at
-from perception.runner import perceive_image, perceive_scene
+from rlgp_exec.perception.rendered_camera import ImageEffects, render_camera
+from rlgp_exec.perception.runner import perceive_image, perceive_scene
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.types import pose_matrix
-from sim.camera import ImageEffects, render_camera
-from sim.world import build_world
+from rlgp_exec.world.pybullet_world import build_world
 
 SCENES = Path(__file__).resolve().parent.parent / "sim" / "scenes"
 CAM = camera_for_robot("hsr")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from rlgp_exec.bench.planners import run_planner_bench
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.bench import run_planner_bench
 from rlgp_exec.planning.sequence import STAGES
 
 SORTING = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
@@ -65,7 +65,7 @@ def test_a_job_that_raises_is_a_failed_run_with_the_reason():
     """A job whose future raises (on a cluster: a worker killed natively on it, thrice) is recorded."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from rlgp_exec.planning.bench import _submit_all
+    from rlgp_exec.bench.planners import _submit_all
 
     def boom(scene_path, planner, seed, limits):
         raise RuntimeError(f"{planner} {seed} lost")
@@ -79,7 +79,7 @@ def test_a_run_that_crashes_natively_is_a_failed_run_not_the_end_of_the_sweep(mo
     import os
     import signal
 
-    from rlgp_exec.planning import bench
+    from rlgp_exec.bench import planners as bench
 
     monkeypatch.setattr(bench, "run_job", lambda *_: os.kill(os.getpid(), signal.SIGSEGV))  # in the child
     record, xy = bench.run_isolated(str(SORTING), "rlgp", 0)

@@ -105,11 +105,11 @@ def test_a_fallback_is_replayed_in_place_as_a_whole_replay_with_it_would(scene, 
     """``validate_with_fallbacks`` replays a colliding phase again on its fallback, from where the phase
     started, and goes on (one world, one pass): the same validation as replaying the plan with the
     fallback in place; a fallback that collides too ends the replay there."""
-    import sim.world
+    from rlgp_exec.world import pybullet_world
 
     worlds = []
-    build = sim.world.build_world
-    monkeypatch.setattr(sim.world, "build_world", lambda *a, **k: worlds.append(1) or build(*a, **k))
+    build = pybullet_world.build_world
+    monkeypatch.setattr(pybullet_world, "build_world", lambda *a, **k: worlds.append(1) or build(*a, **k))
     model = load_robot("hsr")
     q0 = model.home(scene.robot.base, scene.robot.joints)
     aside = q0.copy()
@@ -188,7 +188,7 @@ def test_keyframes_keep_mesh_fingers_out_of_neighbouring_objects(mesh_rows):
     ~1e-8 outside)."""
     from rlgp_exec.planning.sequence import SequenceGeometry
     from rlgp_exec.scene.randomize import randomize
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     scene = randomize(load_scene(SORTING.parent / "pick_place_pr2.toml"), 2)
     geo = SequenceGeometry(scene, seed=2)

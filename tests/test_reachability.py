@@ -47,7 +47,7 @@ def wall():
 
 
 def replay_is_collision_free(scene, graph, path) -> bool:
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     world = build_world(replace(scene, objects=()), tags=False)
     try:

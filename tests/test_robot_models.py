@@ -14,7 +14,7 @@ import pytest
 from rlgp_exec.errors import ModelError
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.pybullet_body import PyBulletRobot
-from robots import robot_dir
+from rlgp_exec.robots import robot_dir
 
 ROBOTS = ["hsr", "pr2"]
 N_CONFIGS = 200

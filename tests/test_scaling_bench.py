@@ -7,9 +7,9 @@ import json
 
 import pytest
 
+from rlgp_exec.bench.scaling import ScalingJob, parse_counts, scaling_jobs
 from rlgp_exec.cli import main
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.scaling_bench import ScalingJob, parse_counts, scaling_jobs
 
 RECORD_KEYS = {"robot", "N", "seed", "planner", "success", "cpu_s", "wall_s", "planning_time_s", "n_steps",
                "n_nlp", "reason"}
@@ -84,7 +84,7 @@ def test_a_run_still_planning_at_the_wall_cap_is_killed_and_recorded_failed(monk
     """The planners' budgets are CPU time; a child stuck in a call that spends none is still ended."""
     import time
 
-    from rlgp_exec.planning import bench
+    from rlgp_exec.bench import planners as bench
 
     monkeypatch.setattr(bench, "run_job", lambda *_: time.sleep(60))  # in the child: no CPU spent
     record, xy = bench.run_isolated("unused.toml", "rlgp", 4, wall_timeout_s=2.0)

@@ -13,8 +13,8 @@ from rlgp_exec.cli import main
 from rlgp_exec.demo import scene_path
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.scene import load_scene, randomize
-from sim.render import render_world
-from sim.world import build_world
+from rlgp_exec.world.pybullet_world import build_world
+from rlgp_exec.world.render import render_world
 
 SCENES = sorted(f.stem for f in (Path(__file__).resolve().parents[1] / "sim" / "scenes").glob("*.toml"))
 

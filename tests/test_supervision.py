@@ -217,7 +217,7 @@ def test_a_task_without_fresh_robot_state_waits_then_fails_without_moving(sim, m
 def daemon(tmp_path):
     from rlgp_exec.executive.daemon import Daemon, DaemonOptions
     from rlgp_exec.executive.runner import RunOptions
-    from sim.robot_process import free_endpoint
+    from rlgp_exec.sim.robot_process import free_endpoint
 
     d = Daemon(load_scene(SCENE), RunOptions(backend="sim"), DaemonOptions(free_endpoint(), "", tmp_path))
     d.start()

@@ -26,7 +26,7 @@ from rlgp_exec.executive.states import ExecState
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.zenoh_keys import load_key_map, open_session, session_config
 from rlgp_exec.scene import load_scene
-from sim.robot_process import free_endpoint
+from rlgp_exec.sim.robot_process import free_endpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "tests" / "data" / "shelf_hsr.toml"
@@ -164,7 +164,7 @@ def _tls(ep: str) -> str:
 def test_mutual_tls_and_access_control_keep_unauthorised_peers_from_commanding(pki):
     robot_ep, daemon_ep = _tls(free_endpoint()), _tls(free_endpoint())
     robot = subprocess.Popen(
-        [sys.executable, "-m", "sim.robot_server", "--robot", "hsr", "--transport", "zenoh",
+        [sys.executable, "-m", "rlgp_exec.sim.robot_server", "--robot", "hsr", "--transport", "zenoh",
          "--endpoint", robot_ep, "--zenoh-config", str(pki["robot"])],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip

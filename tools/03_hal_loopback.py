@@ -2,7 +2,7 @@
 
     .venv/bin/python tools/03_hal_loopback.py [--transport zenoh|can]
 
-zenoh: ``python -m sim.robot_server`` runs in a subprocess (the real process and transport boundary);
+zenoh: ``python -m rlgp_exec.sim.robot_server`` runs in a subprocess (the real process and transport boundary);
 can: the CANopen node set runs in a thread on python-can's virtual bus (it does not cross processes).
 The script reads the state, streams a 1 s arm-lift ramp at 100 Hz, grasps the block of the grasp test
 scene, lifts it, releases it, and exercises the e-stop. It prints what it sees.
@@ -22,8 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rlgp_exec.hal import GripperCommand, make_backend  # noqa: E402
-from sim.robot_process import RobotProcess  # noqa: E402
-from sim.robot_server_scene import grasp_scene, write_grasp_scene  # noqa: E402
+from rlgp_exec.sim.robot_process import RobotProcess  # noqa: E402
+from rlgp_exec.sim.robot_server_scene import grasp_scene, write_grasp_scene  # noqa: E402
 
 
 def ramp(hal, joint: str, delta: float, seconds: float = 1.0) -> float:
@@ -55,7 +55,7 @@ def main() -> int:
         import can
 
         from rlgp_exec.hal.sim_physics import SimRobot
-        from sim.robot_server_can import CanRobotServer
+        from rlgp_exec.sim.robot_server_can import CanRobotServer
 
         sim = SimRobot("hsr", grasp_scene())
         server = CanRobotServer(sim, can.Bus(interface="virtual", channel="loopback"))

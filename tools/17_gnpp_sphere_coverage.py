@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 from rlgp_exec.planning.gnpp.geometry import FactorLib  # noqa: E402
 from rlgp_exec.robot import load_robot  # noqa: E402
 from rlgp_exec.scene import load_scene  # noqa: E402
-from sim.world import build_world  # noqa: E402
+from rlgp_exec.world.pybullet_world import build_world  # noqa: E402
 
 BEARINGS = 64
 PROBE_R = 0.5  # [m] from the link's centre

@@ -35,12 +35,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from perception.camera import CameraIntrinsics, PerceptionError, camera_for_robot
-from perception.detector import TagDetector
-from perception.look_around import candidate_points
-from perception.pipeline import Perception
-from perception.registry import TagRegistry
-from perception.tracker import ObjectEstimate, ObjectTracker
 from rlgp_exec.executive.world import ObjectSource
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
@@ -48,6 +42,12 @@ from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle
 from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import KeyMap
+from rlgp_exec.perception.camera import CameraIntrinsics, PerceptionError, camera_for_robot
+from rlgp_exec.perception.detector import TagDetector
+from rlgp_exec.perception.look_around import candidate_points
+from rlgp_exec.perception.pipeline import Perception
+from rlgp_exec.perception.registry import TagRegistry
+from rlgp_exec.perception.tracker import ObjectEstimate, ObjectTracker
 from rlgp_exec.robot.head import look_at_q, pointing_error
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene

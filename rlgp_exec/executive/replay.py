@@ -155,7 +155,7 @@ def load_replay(path: str | Path) -> ReplayInput:
 
 def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> ReplayReport:
     """Replay ``path`` (every ``step``-th robot state) into a DIRECT PyBullet world built from it."""
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     inp = load_replay(path)
     scene, states, detections = inp.scene, inp.states, inp.detections
@@ -201,7 +201,7 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
         if png is not None:
             import cv2
 
-            from sim.render import render_world
+            from rlgp_exec.world.render import render_world
 
             rgb = render_world(world, 960, 720, "overview")
             if not cv2.imwrite(str(png), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):

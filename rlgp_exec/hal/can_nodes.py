@@ -10,7 +10,7 @@ from typing import Any
 
 from rlgp_exec.hal.types import HalError
 from rlgp_exec.robot import RobotModel
-from robots import robot_dir
+from rlgp_exec.robots import robot_dir
 
 __all__ = [
     "CW_DISABLE_VOLTAGE",

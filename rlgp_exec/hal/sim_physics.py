@@ -73,7 +73,7 @@ class SimRobot:
         self.cabinets: dict[str, tuple[int, int]] = {}  # name -> (body, drawer joint = drawer link)
         self.world = None
         if scene is not None:
-            from sim.world import build_world
+            from rlgp_exec.world.pybullet_world import build_world
 
             self.world = build_world(scene, tags=False)
             self.client = self.world.client

@@ -21,7 +21,7 @@ from types import MappingProxyType
 from typing import Any
 
 from rlgp_exec.hal.types import HalError
-from robots import robot_dir
+from rlgp_exec.robots import robot_dir
 
 __all__ = [
     "DEFAULT_ENDPOINT",

@@ -45,12 +45,18 @@ def register(name: str, fn: PlannerFn) -> None:
     PLANNERS[name] = fn
 
 
+_loaded: list[bool] = []
+
+
 def _load_plugins() -> None:
-    try:  # GNPP registers its variants when its package exists
-        import rlgp_exec.planning.gnpp  # noqa: F401
-    except ModuleNotFoundError as e:
-        if e.name != "rlgp_exec.planning.gnpp":
-            raise
+    """GNPP's variants, imported on first use (its package loads Fast Downward's wrapper and the NLPs)."""
+    if _loaded:
+        return
+    from rlgp_exec.planning.gnpp import PLANNERS as GNPP_PLANNERS
+
+    for name, fn in GNPP_PLANNERS.items():
+        PLANNERS.setdefault(name, fn)  # a planner registered under the same name stays
+    _loaded.append(True)
 
 
 def planner_names() -> list[str]:

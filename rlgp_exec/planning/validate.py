@@ -146,7 +146,7 @@ def _replay(
     scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase], step: float, tolerance: float
 ) -> tuple[Validation, set[int]]:
     """The replay (module docstring): its validation, and the phases replayed on their fallbacks."""
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     world = build_world(scene, tags=False, collision_only=True)
     robot, model, client = world.robot, world.robot_model, world.client

@@ -124,7 +124,7 @@ class WorldChecker:
     ) -> None:
         """``manipulator``: the arm whose tool holds an attached object and whose fingers may touch a knob
         (None: the robot's first)."""
-        from sim.world import build_world
+        from rlgp_exec.world.pybullet_world import build_world
 
         self.world = build_world(replace(scene, objects=()), tags=False, collision_only=True)
         self.robot, self.client = self.world.robot, self.world.client

@@ -1,4 +1,4 @@
-"""Conservative advancement along a straight edge, measured lazily link by link (``WorldChecker``).
+"""Conservative advancement along a straight edge, measured lazily link by link (``reach.checker.WorldChecker``).
 
 Each (robot link, obstacle body) pair, and each (held object, obstacle body) pair, is an *entry* with a
 *horizon*: the edge parameter s up to which its last measurement certifies it. Measured at s_m at
@@ -25,7 +25,7 @@ The obstacles are put back before the sweep returns.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import pybullet as p
@@ -33,10 +33,34 @@ import pybullet as p
 from rlgp_exec.planning import budget
 from rlgp_exec.robot.model import FloatArray
 
-if TYPE_CHECKING:
-    from rlgp_exec.reach.checker import WorldChecker
+__all__ = ["SweptWorld", "planar_base", "sweep"]
 
-__all__ = ["planar_base", "sweep"]
+
+class _Robot(Protocol):
+    id: int
+
+    def set_q(self, q: FloatArray, only_changed: bool = ...) -> None: ...
+
+
+class SweptWorld(Protocol):
+    """What a sweep reads and moves of its checker (``reach.checker.WorldChecker``)."""
+
+    @property
+    def robot(self) -> _Robot: ...
+
+    client: int
+    clearance: float
+    calls: int
+    shaped_rows: np.ndarray  # (m,) PyBullet link rows (link index + 1) of the links with collision shapes
+    row_entry: np.ndarray  # a link row's index into shaped_rows (-1: none)
+    finger_links: frozenset[int]
+    planar_base: bool
+    attached: tuple[int, FloatArray, float] | None
+    knob: int | None
+
+    def place_held(self, q: FloatArray) -> None: ...
+
+    def self_collision(self, q: FloatArray) -> bool: ...
 
 LOOKAHEAD = 0.5  # [m] distances are measured up to this far (the checker's)
 MIN_ADVANCE = 1e-3  # [m] closer than the clearance + this (before the end) counts as a collision
@@ -105,7 +129,7 @@ class _Obstacles:
 
 
 def sweep(
-    ch: WorldChecker,
+    ch: SweptWorld,
     q1: FloatArray,
     dq: FloatArray,
     pairs: list[tuple[int, int]],
@@ -136,7 +160,7 @@ def sweep(
 
 
 def _advance(
-    ch: WorldChecker,
+    ch: SweptWorld,
     obstacles: _Obstacles,
     robot_obst: list[int],
     held_obst: list[int],

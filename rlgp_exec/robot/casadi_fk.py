@@ -9,7 +9,7 @@ translation along its linear part. Frames hang off joints with ``frame.placement
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import casadi as ca
 import numpy as np
@@ -17,10 +17,20 @@ import pinocchio as pin
 
 from rlgp_exec.errors import ModelError
 
-if TYPE_CHECKING:
-    from rlgp_exec.robot.model import RobotModel
+__all__ = ["KinematicModel", "build_casadi_fk", "rot_axis_angle"]
 
-__all__ = ["build_casadi_fk", "rot_axis_angle"]
+
+class KinematicModel(Protocol):
+    """What the CasADi chain is built from (``robot.model.RobotModel``): the pinocchio model and the map
+    from planning joints to pinocchio's, q_pin = A q + b."""
+
+    name: str
+    pin_model: pin.Model
+    nq: int
+    A: np.ndarray  # (nq_pin, nq)
+    b: np.ndarray  # (nq_pin,)
+
+    def frame_id(self, name: str) -> int: ...
 
 _CACHE: dict[tuple[str, tuple[str, ...]], ca.Function] = {}
 
@@ -45,7 +55,7 @@ def _se3(M: pin.SE3) -> ca.SX:
     return ca.SX(ca.DM(M.homogeneous))
 
 
-def build_casadi_fk(robot: RobotModel, frames: tuple[str, ...]) -> ca.Function:
+def build_casadi_fk(robot: KinematicModel, frames: tuple[str, ...]) -> ca.Function:
     """``Function('fk_<robot>', [q (nq,)], [T_world_frame (4, 4) for each frame])``."""
     key = (robot.name, frames)
     fn = _CACHE.get(key)

@@ -10,7 +10,7 @@ from types import MappingProxyType
 from typing import Any
 
 from rlgp_exec.errors import ModelError
-from robots import ROBOTS, robot_dir
+from rlgp_exec.robots import ROBOTS, robot_dir
 
 __all__ = ["BASE_JOINTS", "BaseConfig", "Manipulator", "RobotConfig", "load_robot_config"]
 

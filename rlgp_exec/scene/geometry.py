@@ -1,6 +1,6 @@
 """Scene geometry as boxes: fixtures, drawer cabinets, objects, regions, support surfaces.
 
-Both the PyBullet builder (``sim/world.py``) and the planners' collision model build from these
+Both the PyBullet builder (``rlgp_exec/world/pybullet_world.py``) and the planners' collision model build from these
 boxes, so simulation and planning agree. All boxes rotate about z only (yaw), which keeps the
 overlap test exact (separating axes in the plane + a z-interval test).
 

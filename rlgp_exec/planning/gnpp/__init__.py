@@ -11,12 +11,11 @@ from rlgp_exec.planning.gnpp.planner import LOGIC_MAX_EXPANSIONS, VARIANTS, Gnpp
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.plan import Plan
-from rlgp_exec.planning.registry import register
 from rlgp_exec.scene import Scene
 
 BENCH_TIMEOUT_S = 100.0  # [s] CPU per planning call of a registered variant (the paper's timeout: 100 s)
 
-__all__ = ["BENCH_TIMEOUT_S", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
+__all__ = ["BENCH_TIMEOUT_S", "PLANNERS", "VARIANTS", "GnppResult", "GnppStatus", "Logic", "plan_gnpp"]
 
 
 def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts: bool = False):
@@ -36,8 +35,8 @@ def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts
     return run
 
 
-for _v in VARIANTS:
-    register(_v, _planner(_v, _v))
-register("gnpp", _planner("gnpp_trn", "gnpp"))
-register("gnpp_trn_fd", _planner("gnpp_trn", "gnpp_trn_fd", Logic.FAST_DOWNWARD))  # the same, logic by Fast Downward
-register("gnpp_trn_lm", _planner("gnpp_trn", "gnpp_trn_lm", lm_verdicts=True))  # the same, LM verdicts
+#: GNPP's planners by name, as ``planning.registry`` lists them
+PLANNERS = {v: _planner(v, v) for v in VARIANTS}
+PLANNERS["gnpp"] = _planner("gnpp_trn", "gnpp")
+PLANNERS["gnpp_trn_fd"] = _planner("gnpp_trn", "gnpp_trn_fd", Logic.FAST_DOWNWARD)  # the same, logic by Fast Downward
+PLANNERS["gnpp_trn_lm"] = _planner("gnpp_trn", "gnpp_trn_lm", lm_verdicts=True)  # the same, LM verdicts

@@ -1,6 +1,6 @@
 """Rendered camera images: what a robot's head camera sees in a PyBullet world.
 
-The image is rendered with exactly the pinhole model of :class:`perception.camera.CameraIntrinsics`
+The image is rendered with exactly the pinhole model of :class:`rlgp_exec.perception.camera.CameraIntrinsics`
 (so a detector's PnP sees the geometry PyBullet drew), optionally degraded by Gaussian pixel noise,
 blur and a change of light direction, as a real camera sees it.
 """
@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pybullet as p
 
-from perception.camera import CameraIntrinsics, FloatArray
-from sim.world import World
+from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray
+from rlgp_exec.world.pybullet_world import World
 
 __all__ = ["ImageEffects", "SimCapture", "camera_pose", "hide_floor", "render_camera"]
 

@@ -65,7 +65,7 @@ def _zenoh_rtt(pings: int) -> list[float]:
 def _zenoh_loop(seconds: float) -> tuple[float, list[float]]:
     from rlgp_exec.hal.sim_physics import SimRobot
     from rlgp_exec.hal.zenoh_backend import ZenohBackend
-    from sim.robot_server import ZenohRobotServer
+    from rlgp_exec.sim.robot_server import ZenohRobotServer
 
     ep = f"tcp/127.0.0.1:{_port()}"
     sim = SimRobot("hsr")
@@ -102,7 +102,7 @@ def _can_rate(seconds: float) -> float:
 
     from rlgp_exec.hal.can_backend import CanBackend
     from rlgp_exec.hal.sim_physics import SimRobot
-    from sim.robot_server_can import CanRobotServer
+    from rlgp_exec.sim.robot_server_can import CanRobotServer
 
     ch = f"bench-{uuid.uuid4().hex}"
     sim = SimRobot("hsr")

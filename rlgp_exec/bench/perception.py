@@ -18,15 +18,15 @@ from typing import Any
 import numpy as np
 import pybullet as p
 
-from perception.camera import camera_for_robot
-from perception.detector import DETECTORS, TagDetector
-from perception.pipeline import Perception
-from perception.pose import rotation_angle
-from perception.registry import TagRegistry
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.perception.camera import camera_for_robot
+from rlgp_exec.perception.detector import DETECTORS, TagDetector
+from rlgp_exec.perception.pipeline import Perception
+from rlgp_exec.perception.pose import rotation_angle
+from rlgp_exec.perception.registry import TagRegistry
+from rlgp_exec.perception.rendered_camera import ImageEffects, render_camera
 from rlgp_exec.scene import load_scene
-from sim.camera import ImageEffects, render_camera
-from sim.world import build_world
+from rlgp_exec.world.pybullet_world import build_world
 
 __all__ = ["DISTANCES", "look_at", "run_perception_bench"]
 

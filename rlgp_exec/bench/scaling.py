@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from rlgp_exec.bench.planners import run_isolated
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.bench import run_isolated
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.registry import planner_names
 from rlgp_exec.scene.generate import MAX_SORTING_OBJECTS, ROBOTS, sorting_scene

@@ -11,7 +11,7 @@ import pybullet as p
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.scene import Scene
-from sim.world import World, build_world
+from rlgp_exec.world.pybullet_world import World, build_world
 
 __all__ = ["VIEWS", "render_scene_png", "render_world"]
 

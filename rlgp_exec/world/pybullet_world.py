@@ -21,7 +21,7 @@ from rlgp_exec.robot import RobotModel, load_robot
 from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import TAG_LIFT, Box, cabinet_geometry, fixture_boxes, object_box, region_box
-from sim.tags import tag_files, tag_quad_size
+from rlgp_exec.world.tags import tag_files, tag_quad_size
 
 __all__ = ["CabinetBody", "World", "build_world", "matrix_to_pose"]
 

@@ -32,11 +32,11 @@ from rlgp_exec.executive.executive import Executive
 from rlgp_exec.executive.runner import RunOptions, connect, goal_objects
 from rlgp_exec.executive.world import ZenohMocap
 from rlgp_exec.scene import load_scene
-from sim.robot_process import RobotProcess
+from rlgp_exec.sim.robot_process import RobotProcess
 
 __all__ = ["SCENE", "run_camera_bench"]
 
-SCENE = Path(__file__).resolve().parents[2] / "sim" / "scenes" / "sorting_hsr.toml"
+SCENE = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
 
 
 def _p(xs: list[float], q: float) -> float | None:

@@ -25,8 +25,8 @@ from rlgp_exec.executive.act import Actor, ActStatus, Signals
 from rlgp_exec.executive.runner import RunOptions, connect, run_task
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.scene import load_scene
+from rlgp_exec.sim.robot_process import RobotProcess
 from rlgp_exec.timing import TRACKING_HEADROOM, time_parameterize
-from sim.robot_process import RobotProcess
 
 __all__ = ["run_executive_bench"]
 

@@ -31,7 +31,7 @@ def run_reachability_bench(
 ) -> dict:
     from dataclasses import replace
 
-    from sim.world import build_world
+    from rlgp_exec.world.pybullet_world import build_world
 
     scene = load_scene(scene_path)
     model = load_robot(scene.robot.name)
