@@ -25,7 +25,7 @@ demo: $(STAMP)
 	$(BIN)/rlgp-exec demo --out $(OUT)
 
 lint: $(STAMP)
-	$(BIN)/ruff check rlgp_exec robots perception sim tests tools
+	$(BIN)/ruff check rlgp_exec robots perception sim tests tools examples
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 

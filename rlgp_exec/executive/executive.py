@@ -35,7 +35,7 @@ from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene, scene_to_dict
 from rlgp_exec.scene.literals import parse_goal
 from rlgp_exec.scene.types import Goal, Literal
-from rlgp_exec.timing import TRACKING_HEADROOM, Trajectory, time_parameterize
+from rlgp_exec.timing import TimingError, Trajectory, to_trajectory
 
 __all__ = ["Executive", "TaskResult", "TaskStatus"]
 
@@ -281,17 +281,10 @@ class Executive:
         ]
 
     def _time(self, plan: Plan) -> list[Trajectory | None]:
-        limits = self.model.limits.scaled(*TRACKING_HEADROOM)
-        out: list[Trajectory | None] = []
-        for k, ph in enumerate(plan.phases):
-            if len(ph.path) < 2:
-                out.append(None)
-                continue
-            res = time_parameterize(ph.path, limits)
-            if not res.ok:
-                raise _FailedError(f"timing phase {k}: {res.status.value}: {res.reason}")
-            out.append(res.trajectory)
-        return out
+        try:
+            return list(to_trajectory(plan, self.model).trajectories)
+        except TimingError as e:
+            raise _FailedError(str(e)) from e
 
     def _record_detections(self, poses: dict[str, FloatArray]) -> None:
         if self.recorder is not None:

@@ -29,6 +29,12 @@ class Level3Stats:
 
 @dataclass(frozen=True)
 class Plan:
+    """A planner's answer for a scene's goal: the symbolic actions, the keyframes (K, nq) at which the hand's
+    mode switches, and the joint paths (``phases``) between them, in the robot's planning joints (the base's
+    x [m], y [m], yaw [rad] first on a mobile robot, then each joint [rad or m]). ``success`` only when the
+    plan was replayed in PyBullet (``validation``): collision-free and the goal met; otherwise ``reason``
+    says why not. Time it with :func:`rlgp_exec.to_trajectory`."""
+
     success: bool  # validated: collision-free replay and goal met
     planner: str
     actions: tuple[str, ...]

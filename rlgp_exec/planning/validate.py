@@ -61,6 +61,10 @@ class Phase:
 
 @dataclass(frozen=True)
 class Validation:
+    """A plan's replay in PyBullet: whether it touched anything it must not (``collisions``, as "link ~
+    body" pairs), whether the goal holds at its end (``unmet`` literals, with why), and where every object
+    (T_world_obj (4, 4)) and drawer (opening [m]) ended."""
+
     collision_free: bool
     goal_met: bool
     collisions: tuple[str, ...]

@@ -192,6 +192,11 @@ class StartState:
 
 @dataclass(frozen=True)
 class Scene:
+    """A task: the robot and where it starts, the fixtures (tables, shelves, cabinets), the movable objects
+    and the regions on fixtures, and the goal (literals such as ``(on block_a tray)``). Poses are in the
+    world frame, [m] and [rad]. Read from a scene file by :func:`load_scene`; immutable (SENSE makes a new
+    one with the sensed poses)."""
+
     name: str
     robot: RobotSpec
     fixtures: tuple[Fixture, ...]
