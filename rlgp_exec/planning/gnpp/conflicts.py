@@ -32,9 +32,8 @@ FILTER_MAX = RESTART_ABOVE  # conflicts up to this size are made minimal (QuickX
 #: 3-5 solves of growing size (a feasible plan's No Time and full graph took 40-60 % of tower's CPU)
 WHOLE_FIRST = (Relaxation.NO_TIME, Relaxation.NONE)
 #: relaxations whose large NLPs found infeasible from the guess get ``GraphSolver``'s second start (the
-#: arms' start postures, ``solver.RESTART_ABOVE``): the full graph only. Tower, obstacles and Hanoi, seeds
-#: 0-4: at the full graph the second start turned the verdict feasible 6 times of 6 (tower seed 1, Hanoi
-#: every seed); at "No Time" (obstacles, 2 per seed) 0 times of 10, for 3.7 s of CPU
+#: arms' start postures, ``solver.RESTART_ABOVE``): the full graph only, where it turns verdicts; at "No
+#: Time" it never did and cost seconds
 RESTARTED = (Relaxation.NONE,)
 FILTER_MAX_NO_ROBOT = 200  # ... or this size when no factor has an arm variable (object poses only)
 

@@ -25,15 +25,12 @@ __all__ = ["TopIK", "ik_seed", "initial_guess", "rel_T"]
 log = logging.getLogger(__name__)
 RESTARTS = 3  # seeded perturbations of the start posture tried after the reference and the start
 RING = 0.6  # [m] a mobile arm's IK also starts with its base this far from the target (see _ring_starts)
-#: IPOPT's iteration limit per IK start. The solves that reach the point converged within 29 iterations
-#: (every recorded TopIK call of tower_pr2 seed 1, obstacles_tower_pr2 and hanoi_pr2 seed 0: 204 of them,
-#: p95 11-19); the others ran to IPOPT's default 100 and were 80-90 % of the IK's CPU (Hanoi: 1.4 of
-#: 1.5 s). Replayed with a limit of 50 or 35: every call's answer bit-identical, 33-45 % less CPU
+#: IPOPT's iteration limit per IK start: the solves that reach the point converge well within it, while
+#: those that do not would run to IPOPT's default 100 and dominate the IK's CPU
 IK_MAX_ITER = 60
 #: a fixed-base arm's IK adds IPOPT's heuristics for likely infeasible problems: a point out of reach
-#: (a pick across the body) ends sooner than at ``IK_MAX_ITER``, each of the five starts. Recorded calls
-#: (PR2: tower seeds 0-2, obstacles 0 and 3, Hanoi 1, sorting 0; 278 calls) replayed: every answer the
-#: same (|dq| < 1e-12), 10-35 % less IK CPU. Not for a mobile base: there the HSR's answers changed
+#: (a pick across the body) ends sooner than at ``IK_MAX_ITER``, each of the five starts, with the same
+#: answers on recorded calls. Not for a mobile base: there the HSR's answers changed
 IK_FIXED_BASE = {"ipopt.expect_infeasible_problem": "yes"}
 #: a fixed-base arm's IK tries IPOPT from its starts after the first (the start posture, random ones) only
 #: where Levenberg-Marquardt (``lm``, a few ms) reaches the point from that start: a point out of reach

@@ -12,8 +12,8 @@ IPOPT's restoration phase ends in), or after ``max_iter`` steps.
 The verdict is on the true bounds. A feasible point found so sits on the bounds it reached (a clearance
 row at its margin: the upper arm at its distance to the table), which an interior-point solver's points
 keep off; ``polish`` then moves it inside the inequality rows (``INSETS``: 1 cm, else less) where a few
-steps can, without giving up the verdict. (Aiming inside them for the verdict too made Hanoi's discs,
-which only just fit on their pegs, "infeasible": stop 27.) ``sparse`` steps serve a whole plan's graph
+steps can, without giving up the verdict. (The verdict itself is not aimed inside them: Hanoi's discs
+only just fit on their pegs.) ``sparse`` steps serve a whole plan's graph
 (``GraphSolver.polish``).
 """
 

@@ -78,68 +78,39 @@ IPOPT = {
 #: verdicts (an obstacle left free and still "in the way": 15 conflicts refuted, 5 plans blocked), and
 #: not in ``refute``, the check before a conflict is believed
 SEARCH = {"ipopt.expect_infeasible_problem": "yes"}
-#: random starts ``refute`` tries. With ``SEARCH``, obstacles_tower_pr2 seed 3 once learnt a conflict
-#: (a place within the arm's reach) that 4 tries did not refute; 3 of 16 single starts did (with or
-#: without ``SEARCH``): 4 tries miss it about half the time, 8 one time in four. On true conflicts 8
-#: tries cost ~0.2-0.8 s each (Hanoi's 12)
+#: random starts ``refute`` tries: fewer miss a false conflict too often; on a true conflict each try costs
+#: ~0.2-0.8 s
 REFUTE_TRIES = 8
 #: random starts ``refute`` tries when LM answers (``GraphSolver.lm_refute``: fixed-base arms, subgraphs with
-#: arm variables of up to ``LM_MAX_FACTORS`` factors). Measured (stop 29) on the reach conflicts of tower,
-#: obstacles and Hanoi runs with their object moved towards the shoulder until just feasible (14 cases,
-#: 24 of refute's starts each): LM reached a feasible point from 0.85 of IPOPT's starts on average
-#: (65 % against 77 %), more on the hardest (obstacles seed 3, b1: 2-4 of 24 against 1-2), at 0.15-0.5 of
-#: IPOPT's CPU per start; on 24 true conflicts of those runs 9 LM starts took 0.04-0.34 s against IPOPT's
-#: 0.13-0.97 s. Twice IPOPT's tries: a stronger check than IPOPT's 8, at about 0.4 of its CPU. Side by side
-#: with IPOPT's refute (5 seeds, interleaved, median CPU): tower 4.71 against 4.91 s, Hanoi 7.34 against 8.07,
-#: obstacles 5.98 against 7.21; the same conflicts, iterations and plan lengths on every seed. (LM's evaluations
-#: through bound buffers, ``casadi_call``, and ``REFUTE_LM_MAX_ITER`` then took refute's CPU on seed 0 from 1.21
-#: to 0.36 s on Hanoi, 0.47 to 0.26 on obstacles, 0.22 to 0.10 on tower)
+#: arm variables of up to ``LM_MAX_FACTORS`` factors): LM reaches a feasible point from fewer starts than
+#: IPOPT but costs a fraction of its CPU per start, so twice the tries is a stronger check for less
 REFUTE_TRIES_LM = 2 * REFUTE_TRIES
-#: LM's steps per ``refute`` try at most. Of the 423 tries above that reached a feasible point, 417 did within
-#: 28 steps (the other 6 at IPOPT's cap, 57-63); on a true conflict a try runs to the cap unless the violation
-#: stalls (Hanoi's 9-factor conflicts: every try to 69 steps)
+#: LM's steps per ``refute`` try at most: nearly every try that reaches a feasible point does so well within
+#: it, while a try on a true conflict runs to the cap unless the violation stalls
 REFUTE_LM_MAX_ITER = 30
 #: an NLP of up to this many factors is solved from its guess only; a larger one found infeasible
 #: there gets a second start, the arms' start postures. A small subgraph's "infeasible" verdict ends,
 #: if at all, in a conflict that ``refute`` checks before it is believed (``conflicts.FILTER_MAX``:
 #: the conflicts minimised and refuted are up to this size), and ``refute`` tries that start first;
-#: larger ones (whole stretches of a plan) block a plan unchecked. Recorded runs (tower, obstacles,
-#: Hanoi, 3 seeds each: 278 search verdicts "infeasible" from the guess): the second start found a
-#: feasible point 4 times, all on full-graph windows of over 100 factors, and took 45 % of the
-#: search's NLP time on Hanoi. The conflict search gives it at the full graph only (``conflicts.RESTARTED``)
+#: larger ones (whole stretches of a plan) block a plan unchecked. The second start pays off only on
+#: full-graph windows, so the conflict search gives it at the full graph only (``conflicts.RESTARTED``)
 RESTART_ABOVE = 60
 #: starts after the guess for an NLP over object poses only (cheap: a few ms each), each object's guess
 #: perturbed (``X_JITTER``): from a guess with a block inside its neighbour a signed distance leads
-#: nowhere, and obstacles_tower_pr2 seed 4 found and ``refute``d the same false conflict (a block on the
-#: goal region beside an obstacle) 12 times, blocking 4 plans
+#: nowhere, and the same false conflict is found and refuted again and again
 OBJECT_STARTS = 2
 #: [m] how far apart ``_cleared`` sets the objects that only collision factors name: one more start for an
 #: object-only NLP, after ``OBJECT_STARTS``. In a relaxation without time such an object (an obstacle whose
-#: ``Ref`` and ``Equal`` chain were relaxed away) can stand anywhere; from where it started, in the block's way,
-#: the solver pushed the block into a corner: obstacles_tower_pr2 seed 4 (with ``gnpp_trn_lm``) learnt "b1 on
-#: the goal region beside the fixed o2, o1 free" as a conflict from every start, refuted it 12 times and
-#: blocked 6 plans; from o1 set aside it is feasible at once
+#: ``Ref`` and ``Equal`` chain were relaxed away) can stand anywhere; from where it started, in the block's
+#: way, the solver pushes the block into a corner and learns a false conflict; from it set aside, feasible
 CLEAR_GAP = 0.3
 #: with ``plan_gnpp(lm_verdicts=True)`` (the planner ``gnpp_trn_lm``) the conflict search's NLPs with arm
 #: variables of up to this many factors get their verdict from ``lm.LevenbergMarquardt``, not IPOPT
 #: (``refute``: LM by default, ``REFUTE_TRIES_LM``); a feasible point is then moved off the bounds it reached
-#: (``LevenbergMarquardt.polish``). Recorded runs (``tools/16``, seeds 0 and 3 of tower, obstacles, Hanoi):
-#: the same verdicts at 0.47-1.0 of IPOPT's CPU. Not the default: side by side with ``gnpp_trn`` (stop 28,
-#: 5 seeds, median CPU) tower 3.30 / 3.93 s against 4.52 / 4.62 s and Hanoi 5.13 / 6.72 against 6.03 / 8.02,
-#: but obstacles 6.87 / 10.79 against 5.53 / 7.13: plans blocked after failed replays (seeds 0, 3, 4), their
-#: keyframes other than IPOPT's. On seed 0 a pick keyframe's upper arm entered the table 9.6 mm with 12 mm
-#: to spare on every sphere row: the upper arm's one sphere (8 cm, ``FactorLib._pr2_shapes``) under-covers
-#: its link, whose hull reaches 9.8 cm from the shoulder-elbow axis. Three 11 cm spheres against the
-#: fixtures fixed those seeds for LM, but blocked plans of IPOPT's on seeds 1 and 2 (21 s each): not landed.
-#: Seed 4 also learned a false object-only conflict (IPOPT's, from other warm starts) and refuted it 12 times
-#: (fixed by ``CLEAR_GAP``'s start). Stop 29, after refute by LM and LM's buffered evaluations, 5 seeds: tower
-#: 3.27 against 3.22 s, Hanoi 2.79 against 4.11, obstacles 6.05 against 4.06 (seeds 0, 3, 4: 1-2 plans blocked
-#: after replays with a finger on an obstacle (seeds 3, 4: 7.7 mm into o1 on a place's last descent, the
-#: finger link's hull 2.8 cm thick where its two spheres cover 1.6 cm) or the upper arm on the table (seed 0)).
-#: Fat finger spheres (2 per finger, 2.5 cm) with three upper-arm spheres made gnpp_trn's obstacles plans
-#: 1.5x slower (3-4 plans blocked per seed): not landed
-#: Fixed-base arms only: on the HSR's reach test (a block beyond every base pose's reach) the search learnt
-#: a conflict with the base held (EqualBase), not the one that proves it for any base pose
+#: (``LevenbergMarquardt.polish``). Not the default: LM's points sit on the rows' bounds, where the PR2's
+#: collision spheres under-cover the upper arm and fingers, and some plans fail their replay. Fixed-base
+#: arms only: with a mobile base it learns a conflict with the base held (EqualBase), not one for any base
+#: pose. The measurements: ``docs/decisions/2026-11-solver-options.md``
 LM_MAX_FACTORS = 60
 
 
@@ -156,13 +127,8 @@ def ipopt_options(n_factors: int, search: bool) -> dict:
 
 def _limits(n_factors: int) -> dict:
     """IPOPT's iteration and CPU-time limits for an NLP of ``n_factors`` factors: a verdict "infeasible"
-    is the solver running into them, so they must not cut feasible solves short. Measured (tower,
-    obstacles, Hanoi logs): feasible NLPs under 10 factors converge within 18 iterations, under 40
-    within 58, but those of 100-400 factors (a whole plan) took up to 98 and over 1.5 s, and the old
-    fixed limits (100, 1.5 s) called such feasible plans infeasible. Small NLPs get fewer iterations
-    (their infeasible verdicts are the common kind), large ones more time. The corpora of
-    ``tools/16_gnpp_nlp_corpus.py`` (seeds 0-4 of the three scenes) have 3-factor NLPs that need 37
-    iterations: ``min(30 + n_factors, 400)`` lost two feasible verdicts there."""
+    is the solver running into them, so they must not cut feasible solves short. Small NLPs get fewer
+    iterations (their infeasible verdicts are the common kind), large ones (a whole plan) more time."""
     return {"ipopt.max_iter": min(60 + n_factors, 400), "ipopt.max_cpu_time": 1.0 + 0.012 * n_factors}
 
 

