@@ -8,6 +8,7 @@ images (the same world without tag textures, plus noise and blank frames) measur
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import platform
@@ -29,6 +30,8 @@ from sim.camera import ImageEffects, render_camera
 from sim.world import build_world
 
 __all__ = ["DISTANCES", "look_at", "run_perception_bench"]
+
+log = logging.getLogger(__name__)
 
 DISTANCES = (0.4, 0.6, 0.8, 1.0, 1.25, 1.5)
 SCENE = Path(__file__).resolve().parent.parent / "sim" / "scenes" / "sorting_hsr.toml"
@@ -71,6 +74,7 @@ def run_perception_bench(seed: int = 0, views_per_distance: int = 12, negatives:
     try:
         names = [o.name for o in scene.objects if o.tag is not None]
         for d in DISTANCES:
+            log.info("%s: %d views at %.2f m (%s)", scene.name, views_per_distance, d, ", ".join(detectors))
             for k in range(views_per_distance):
                 name = names[k % len(names)]
                 tag = world.tag_pose(name)[:3, 3]

@@ -20,7 +20,6 @@ import logging
 import multiprocessing as mp
 import os
 import platform
-import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -112,11 +111,11 @@ def _failed(planner: str, seed: int, reason: str, t0: float) -> tuple[dict, list
 
 def _report(record: dict, done: int, total: int) -> None:
     ok = record["success"]
-    print(
-        f"  [{done:3d}/{total}] seed {record['seed']:3d} {record['planner']:5s} {'ok  ' if ok else 'FAIL'} "
-        f"{record['planning_time_s']:7.2f} s {'' if ok else record['reason'][:100]}",
-        file=sys.stderr,
-    )
+    cpu = record.get("cpu_s")
+    spent = f"{cpu:7.2f} s CPU " if cpu is not None else ""
+    log.info("[%3d/%d] seed %3d %-5s %s %s%7.2f s wall %s", done, total, record["seed"], record["planner"],
+             "ok  " if ok else "FAIL", spent, record.get("wall_s", record["planning_time_s"]),
+             "" if ok else record["reason"][:100])
 
 
 def _submit_all(
