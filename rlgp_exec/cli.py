@@ -250,12 +250,27 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
         raise RlgpError("sim-robot --camera publishes over zenoh and renders a scene: give --transport zenoh --scene")
     # the camera node waits for the server's endpoint, so it can start first
     cam = subprocess.Popen(camera_command(args.robot, args.scene, args.endpoint or DEFAULT_ENDPOINT,
-                                          args.namespace or "", args.camera_jpeg))
+                                          args.namespace or "", args.camera_jpeg), stderr=subprocess.PIPE, text=True)
+    _forward_stderr(cam)
     try:
         return server_main(argv)
     finally:
         cam.terminate()
         cam.wait(10)
+
+
+def _forward_stderr(proc: Any) -> None:
+    """Copy a child's stderr to ours as it comes, without PyBullet's import banner (the child is a plain
+    ``python -m``: its imports are not quietened)."""
+    import threading
+
+    def pump() -> None:
+        for line in proc.stderr:
+            if not line.startswith("pybullet build time"):
+                sys.stderr.write(line)
+                sys.stderr.flush()
+
+    threading.Thread(target=pump, name="child-stderr", daemon=True).start()
 
 
 # ---------------------------------------------------------------------------------- plan
@@ -294,6 +309,11 @@ def _output_checks(args: argparse.Namespace) -> None:
         from rlgp_exec.animate import check_animation_path
 
         check_animation_path(args.animate)
+        if not (args.fps > 0 and (args.speed is None or args.speed > 0)):
+            raise RlgpError(f"--fps {args.fps} and --speed {args.speed}: both must be positive")
+    rate = getattr(args, "rate", None)
+    if rate is not None and not (0 < rate <= 1000):
+        raise RlgpError(f"--rate {rate} Hz: must lie in (0, 1000]")
     if getattr(args, "gui", False):
         from rlgp_exec.gui import require_display
 
@@ -689,13 +709,13 @@ def _perceive_and_plan(args: argparse.Namespace) -> int:
 def task_script(doc: str, scene: str, planners: str, perturb_m: float = 0.03, robots: tuple[str, ...] = ()) -> int:
     """The ``tools/1x_*.py`` perception-to-plan scripts: ``perceive SCENE --plan PLANNERS`` on a shipped
     scene with that script's defaults. ``scene`` may hold ``{robot}`` when ``robots`` lists the choices."""
-    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
-    ap.add_argument("--planners", default=planners)
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0], formatter_class=_Help)
+    ap.add_argument("--planners", default=planners, help="the planners, comma-separated")
     if robots:
-        ap.add_argument("--robot", choices=robots, default=robots[0])
-    ap.add_argument("--seed", type=int, default=0)
+        ap.add_argument("--robot", choices=robots, default=robots[0], help="the robot of the task")
+    ap.add_argument("--seed", type=int, default=0, help="the perturbation's seed")
     ap.add_argument("--perturb", type=float, default=perturb_m, help="[m] how far the objects are from the file")
-    ap.add_argument("--json")
+    ap.add_argument("--json", metavar="FILE", help="write the runs as JSON to FILE ('-': stdout)")
     args = ap.parse_args()
     from rlgp_exec.demo import scene_path
 

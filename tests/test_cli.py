@@ -145,9 +145,16 @@ def test_gui_without_a_display_exits_2_before_any_work(monkeypatch, capsys, tmp_
         assert "$DISPLAY" in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_an_animation_file_must_be_gif_or_mp4(capsys):
-    assert main(["-q", "plan", str(SHELF), "--animate", "motion.avi"]) == 2
-    assert ".gif or .mp4" in capsys.readouterr().err
+@pytest.mark.parametrize("extra, says", [
+    (["--animate", "motion.avi"], ".gif or .mp4"),
+    (["--animate", "motion.gif", "--fps", "0"], "must be positive"),
+    (["--animate", "motion.gif", "--speed", "-1"], "must be positive"),
+    (["--rate", "0"], "--rate 0.0 Hz"),
+])  # fmt: skip
+def test_bad_output_options_exit_2_before_planning(extra, says, capsys):
+    assert main(["-q", "plan", str(SHELF), *extra]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "planning" not in err
 
 
 def test_request_exit_codes(monkeypatch, capsys):

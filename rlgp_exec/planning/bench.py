@@ -176,8 +176,11 @@ def run_planner_bench(
         raise RlgpError(f"--workers {workers}: must be at least 1")
     scene_path = str(Path(scene_path).resolve())
     base = load_scene(scene_path)
+    log.info("%s: the reachability graph (built once, cached for the runs)", base.name)
     _, stats = load_or_build(base)  # once, before any worker: they all read the cache
     jobs = [(seed, name) for seed in range(seeds) for name in planners]  # interleaved, seed by seed
+    log.info("%s: %d runs (%d seeds x %s), each in a process of its own", base.name, len(jobs), seeds,
+             ",".join(planners))
     t0 = time.perf_counter()
     if cluster:
         results = _on_cluster(jobs, cluster, scene_path, limits)
