@@ -129,8 +129,35 @@ BENCHES = ("timing", "perception", "camera", "hal", "executive", "reachability",
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    task = args.task
+    from rlgp_exec import progress
+
     scene_file = _scene(args.scene_file) if args.scene_file else None
+    if args.task not in BENCHES and not _is_scene(args.task):
+        from rlgp_exec.scene_arg import shipped_scenes
+
+        raise RlgpError(
+            f"{args.task!r}: not a benchmark, a scene file nor a shipped scene; benchmarks: {', '.join(BENCHES)}; "
+            f"or a scene (planners side by side: --planners rlgp,lgp --seeds N); shipped scenes: "
+            f"{', '.join(shipped_scenes())}"
+        )
+    if args.task not in BENCHES:
+        _scene(args.task)  # a missing .toml file: the resolver's error names it
+    if args.task == "scaling":
+        return _bench_scaling(args)
+    with progress.stage(f"bench {args.task}" + (f" on {scene_file.name}" if scene_file else "")):
+        result = _bench(args, scene_file)
+    _write_json(args.json, result)
+    for k, v in result.get("summary", {}).items():
+        if isinstance(v, dict):
+            for k2, v2 in v.items():
+                say(f"{k}.{k2}: {v2}")
+        else:
+            say(f"{k:40s} {v}")
+    return EXIT_OK
+
+
+def _bench(args: argparse.Namespace, scene_file: Path | None) -> dict[str, Any]:
+    task = args.task
     if task == "timing":
         from rlgp_exec.timing.bench import run_timing_bench
 
@@ -159,9 +186,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         task_scene = scene_file or scene_path("sorting_hsr")
         result = run_executive_bench(task_scene, task_scene, n_faults=args.faults, seed=args.seed or 0)
-    elif task == "scaling":
-        return _bench_scaling(args)
-    elif _is_scene(task):
+    else:  # a scene (cmd_bench checked): its planners side by side
         from rlgp_exec.planning.bench import run_planner_bench
 
         planners = (args.planners or "rlgp,lgp").split(",")
@@ -169,22 +194,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
             _scene(task), planners, args.seeds or 20, workers=args.workers, cluster=args.cluster, plot=args.plot,
             limits=_limits(args),
         )
-    else:
-        from rlgp_exec.scene_arg import shipped_scenes
-
-        raise RlgpError(
-            f"{task!r}: not a benchmark, a scene file nor a shipped scene; benchmarks: {', '.join(BENCHES)}; "
-            f"or a scene (planners side by side: --planners rlgp,lgp --seeds N); shipped scenes: "
-            f"{', '.join(shipped_scenes())}"
-        )
-    _write_json(args.json, result)
-    for k, v in result.get("summary", {}).items():
-        if isinstance(v, dict):
-            for k2, v2 in v.items():
-                say(f"{k}.{k2}: {v2}")
-        else:
-            say(f"{k:40s} {v}")
-    return 0
+    return result
 
 
 def _is_scene(arg: str) -> bool:
@@ -736,7 +746,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise RlgpError(f"demo: {path} is a {scene.robot.name} scene; the demo runs the HSR's Zenoh interface")
     if not any(o.tag is not None for o in scene.objects):
         raise RlgpError(f"demo: {path} has no tagged objects (an [[object]] tag = {{ id, size }}): nothing to perceive")
-    report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path))
+    from rlgp_exec import progress
+
+    with progress.stage(f"demo on {scene.name} ({path}), files to {args.out}"):
+        report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path))
     say(report.text())
     if args.gui and (Path(args.out) / "demo.mcap").is_file():
         from rlgp_exec.gui import show_recording
