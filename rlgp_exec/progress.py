@@ -22,6 +22,7 @@ __all__ = ["Display", "current", "stage", "start", "stop"]
 
 _current: list[Display] = []  # the display start() opened, until stop()
 HEARTBEAT_S = 30.0  # [s] plain display: a "still ..." line after this long without a line
+STAGE_SAY_S = 0.5  # [s] a stage's start is shown once it has run this long (or at its first line)
 
 
 class _Handler(logging.Handler):
@@ -66,6 +67,7 @@ class Display:
         self._last = (self.t0, "")  # (time.monotonic(), message) of the last line
         self._lock = threading.Lock()
         self._closed = threading.Event()
+        self._pending: str | None = None  # the current stage's start line, until it is said
         if self.fancy:
             from rich.console import Console
 
@@ -83,7 +85,17 @@ class Display:
         return time.monotonic() - self.t0
 
     def line(self, msg: str) -> None:
-        """One progress line, now."""
+        """One progress line, now (after the start of the stage it belongs to, if that is still unsaid)."""
+        self._say_pending()
+        self._emit(msg)
+
+    def _say_pending(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is not None:
+            self._emit(pending)
+
+    def _emit(self, msg: str) -> None:
         if self._console is not None:
             from rich.markup import escape
 
@@ -101,18 +113,28 @@ class Display:
 
     @contextlib.contextmanager
     def stage(self, text: str) -> Iterator[None]:
-        """A step of the command: its start at once, and (on a terminal) a spinner while it runs."""
-        self.line(f"{text} ...")
-        if self._console is None or self._status is not None:  # plain, or inside another stage
-            yield
-            return
-        self._status = self._console.status(_Spinner(text), spinner="dots")
-        self._status.start()
+        """A step of the command: its start once it has taken ``STAGE_SAY_S`` or says something (a step that
+        ends at once, e.g. refusing bad input, leaves stderr to its one error line), and on a terminal a
+        spinner while it runs."""
+        self._say_pending()
+        with self._lock:
+            self._pending = f"{text} ..."
+        timer = threading.Timer(STAGE_SAY_S, self._say_pending)
+        timer.daemon = True
+        timer.start()
+        status = None
+        if self._console is not None and self._status is None:  # a terminal, and not inside another stage
+            status = self._status = self._console.status(_Spinner(text), spinner="dots")
+            status.start()
         try:
             yield
         finally:
-            self._status.stop()
-            self._status = None
+            timer.cancel()
+            with self._lock:
+                self._pending = None
+            if status is not None:
+                status.stop()
+                self._status = None
 
     def close(self) -> None:
         with self._lock:

@@ -8,6 +8,7 @@ import itertools
 import json
 import logging
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -179,13 +180,18 @@ def test_plain_progress_lines_are_timestamped_and_detached_after(monkeypatch):
     try:
         assert not d.fancy  # not a terminal
         lg = logging.getLogger("rlgp_exec.test_progress")
+        with progress.stage("over at once"):  # bad input refused at once: its error stays the only line
+            pass
         with progress.stage("doing a thing"):
             lg.info("half way")
         lg.warning("a warning")
+        with progress.stage("a slow step"):
+            time.sleep(progress.STAGE_SAY_S + 0.3)
     finally:
         progress.stop()
     lines = buf.getvalue().splitlines()
-    assert [ln.split("] ", 1)[1] for ln in lines] == ["doing a thing ...", "half way", "WARNING: a warning"]
+    assert [ln.split("] ", 1)[1] for ln in lines] == ["doing a thing ...", "half way", "WARNING: a warning",
+                                                      "a slow step ..."]
     assert all(ln[2] == ":" and ln[5] == ":" and "[" in ln for ln in lines)
     assert logging.getLogger("rlgp_exec.test_progress").propagate  # back to the root handler
     with progress.stage("no display"):  # -q: nothing, no error
