@@ -22,7 +22,7 @@ __all__ = ["Display", "current", "stage", "start", "stop"]
 
 _current: list[Display] = []  # the display start() opened, until stop()
 HEARTBEAT_S = 30.0  # [s] plain display: a "still ..." line after this long without a line
-STAGE_SAY_S = 0.5  # [s] a stage's start is shown once it has run this long (or at its first line)
+STAGE_SAY_S = 2.0  # [s] a stage's start is shown once it has run this long (or at its first line)
 
 
 class _Handler(logging.Handler):
@@ -67,7 +67,7 @@ class Display:
         self._last = (self.t0, "")  # (time.monotonic(), message) of the last line
         self._lock = threading.Lock()
         self._closed = threading.Event()
-        self._pending: str | None = None  # the current stage's start line, until it is said
+        self._pending: tuple[str, float] | None = None  # the current stage's start line and time, until said
         if self.fancy:
             from rich.console import Console
 
@@ -93,32 +93,35 @@ class Display:
         with self._lock:
             pending, self._pending = self._pending, None
         if pending is not None:
-            self._emit(pending)
+            self._emit(*pending)
 
-    def _emit(self, msg: str) -> None:
+    def _emit(self, msg: str, at: float | None = None) -> None:
+        """``msg`` stamped with ``at`` [s since the start] (default: now)."""
         if self._console is not None:
             from rich.markup import escape
 
-            self._console.print(f"[dim]{self.elapsed():7.1f} s[/dim]  {escape(msg)}")
+            self._console.print(f"[dim]{self.elapsed() if at is None else at:7.1f} s[/dim]  {escape(msg)}")
         else:
-            self._plain(msg, keep=msg)
+            self._plain(msg, keep=msg, at=at)
 
-    def _plain(self, text: str, keep: str) -> None:
+    def _plain(self, text: str, keep: str, at: float | None = None) -> None:
         with self._lock:
             if self._closed.is_set():
                 return
-            self.stream.write(f"{time.strftime('%H:%M:%S')} [{self.elapsed():7.1f} s] {text}\n")
+            t = self.elapsed() if at is None else at
+            wall = time.strftime("%H:%M:%S", time.localtime(time.time() - (self.elapsed() - t)))
+            self.stream.write(f"{wall} [{t:7.1f} s] {text}\n")
             self.stream.flush()
             self._last = (time.monotonic(), keep)
 
     @contextlib.contextmanager
     def stage(self, text: str) -> Iterator[None]:
-        """A step of the command: its start once it has taken ``STAGE_SAY_S`` or says something (a step that
-        ends at once, e.g. refusing bad input, leaves stderr to its one error line), and on a terminal a
-        spinner while it runs."""
+        """A step of the command: its start (stamped when it started) once it has taken ``STAGE_SAY_S`` or
+        says something (a step that ends at once, e.g. refusing bad input, leaves stderr to its one error
+        line), and on a terminal a spinner while it runs."""
         self._say_pending()
         with self._lock:
-            self._pending = f"{text} ..."
+            self._pending = (f"{text} ...", self.elapsed())
         timer = threading.Timer(STAGE_SAY_S, self._say_pending)
         timer.daemon = True
         timer.start()

@@ -193,6 +193,8 @@ def test_plain_progress_lines_are_timestamped_and_detached_after(monkeypatch):
     assert [ln.split("] ", 1)[1] for ln in lines] == ["doing a thing ...", "half way", "WARNING: a warning",
                                                       "a slow step ..."]
     assert all(ln[2] == ":" and ln[5] == ":" and "[" in ln for ln in lines)
+    stamps = [float(ln.split("[", 1)[1].split(" s]", 1)[0]) for ln in lines]
+    assert stamps[3] - stamps[2] < 0.5  # the slow step's start is stamped when it started, not when said
     assert logging.getLogger("rlgp_exec.test_progress").propagate  # back to the root handler
     with progress.stage("no display"):  # -q: nothing, no error
         pass
