@@ -535,10 +535,33 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             pass
     finally:
         daemon.stop()
+    code = EXIT_OK
     if daemon.fatal is not None:
         print(f"daemon: {daemon.fatal}", file=sys.stderr)
-        return 1
-    return 0
+        code = EXIT_FAILED
+    exit_if_threads_linger(code, "daemon")
+    return code
+
+
+def exit_if_threads_linger(code: int, what: str) -> None:
+    """End the process now if a worker thread outlived its stop (a join timed out): finalising the interpreter
+    under a thread that holds native objects (Ruckig's, OMPL's) prints nanobind's leak dumps. Everything the
+    command opened is closed by then; the streams are flushed first."""
+    import threading
+
+    ignore = {threading.main_thread(), threading.current_thread()}
+    lingering = [t.name for t in threading.enumerate()
+                 if t.is_alive() and t not in ignore and not t.name.startswith("progress")]
+    if not lingering:
+        return
+    log.info("%s: threads %s still running after the stop; exiting without waiting for them", what, lingering)
+    from rlgp_exec import progress
+
+    progress.stop()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def cmd_request(args: argparse.Namespace) -> int:
