@@ -781,13 +781,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK if report.ok else EXIT_FAILED
 
 
+def _no_default(value: object) -> bool:
+    """None, False, "" and argparse's SUPPRESS are no default to show (by identity: 0 is a default)."""
+    return value is None or value is False or value is argparse.SUPPRESS or (isinstance(value, str) and not value)
+
+
 class _Help(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
     """Examples kept as written; every option's default shown, unless it has none (None, False, "") or its
     help already says it."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
-        if action.default in (None, False, "", argparse.SUPPRESS) or "default" in text:
+        if _no_default(action.default) or "default" in text:
             return text
         if not action.option_strings and action.nargs not in ("?", "*"):
             return text

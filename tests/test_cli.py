@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from rlgp_exec.cli import _bad_request, build_parser, main
+from rlgp_exec.cli import _bad_request, _no_default, build_parser, main
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.expected_log import expected_warnings
 from rlgp_exec.planning.registry import planner_names
@@ -52,11 +52,12 @@ def test_every_option_of_every_command_has_help_and_every_command_examples():
         if not isinstance(a, argparse._SubParsersAction) and not (a.help or "").strip()
     ]
     assert not missing, f"options without help: {missing}"
+    assert not _no_default(0) and _no_default(False) and _no_default(None) and _no_default("")
     for name, p in commands.items():
         text = p.format_help()
         assert "examples:" in text and f"rlgp-exec {name}" in text.split("examples:")[1], name
         for a in p._actions:  # a default that matters is shown
-            if a.option_strings and a.default not in (None, False, "", argparse.SUPPRESS):
+            if a.option_strings and not _no_default(a.default):
                 assert "default" in p._get_formatter()._get_help_string(a), (name, a.option_strings)
 
 
