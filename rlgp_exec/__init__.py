@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from rlgp_exec.planning.registry import plan, planner_names
     from rlgp_exec.planning.validate import Phase, Validation
     from rlgp_exec.scene import Scene, load_scene
-    from rlgp_exec.scene.shipped import shipped_scene, shipped_scene_names
+    from rlgp_exec.scene.shipped import shipped_scene, shipped_scenes
     from rlgp_exec.timing import TimedPlan, Trajectory, to_trajectory
 
 __all__ = [
@@ -56,7 +56,7 @@ __all__ = [
     "plan",
     "planner_names",
     "shipped_scene",
-    "shipped_scene_names",
+    "shipped_scenes",
     "to_trajectory",
 ]
 __version__ = "0.1.0"
@@ -69,7 +69,7 @@ _LAZY = {
     "plan": "rlgp_exec.planning.registry", "planner_names": "rlgp_exec.planning.registry",
     "Phase": "rlgp_exec.planning.validate", "Validation": "rlgp_exec.planning.validate",
     "Scene": "rlgp_exec.scene", "load_scene": "rlgp_exec.scene",
-    "shipped_scene": "rlgp_exec.scene.shipped", "shipped_scene_names": "rlgp_exec.scene.shipped",
+    "shipped_scene": "rlgp_exec.scene.shipped", "shipped_scenes": "rlgp_exec.scene.shipped",
     "TimedPlan": "rlgp_exec.timing", "Trajectory": "rlgp_exec.timing", "to_trajectory": "rlgp_exec.timing",
 }
 

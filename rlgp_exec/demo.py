@@ -64,21 +64,24 @@ class DemoReport:
 
 
 def _stage(report: DemoReport, name: str, fn: Callable[[], str]) -> bool:
+    """Run one stage; its start and its result are logged as they happen (the CLI shows them)."""
+    log.info("%s: started", name)
     t0 = time.perf_counter()
     try:
         detail = fn()
         report.stages.append(Stage(name, True, detail, time.perf_counter() - t0))
-        return True
     except RlgpError as e:
         report.stages.append(Stage(name, False, str(e), time.perf_counter() - t0))
-        return False
+    s = report.stages[-1]
+    log.info("%s: %s in %.1f s: %s", name, "ok" if s.ok else "FAILED", s.seconds, s.detail)
+    return bool(s.ok)
 
 
 def scene_path(name: str) -> Path:
     """A shipped scene file by name (``sim/scenes/<name>.toml``)."""
-    from rlgp_exec import sim
+    from rlgp_exec.scene.shipped import shipped_scene_dir
 
-    path = Path(sim.__file__).resolve().parent / "scenes" / f"{name}.toml"
+    path = shipped_scene_dir() / f"{name}.toml"
     if not path.is_file():
         raise RlgpError(f"no shipped scene {name!r} ({path})")
     return path
@@ -117,11 +120,13 @@ def _plot_base_path(recording: Path, out: Path) -> None:
 
 
 def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoReport:
-    """Run the dry run on a shipped HSR scene; files go to ``out``."""
+    """Run the dry run on an HSR scene with tagged objects (a shipped scene's name or a scene file, as
+    ``scene_arg.resolve_scene`` reads it); files go to ``out``."""
     import cv2
 
     from rlgp_exec.scene import load_scene
     from rlgp_exec.scene.serialize import scene_to_toml
+    from rlgp_exec.scene.shipped import resolve_scene
     from rlgp_exec.world.pybullet_world import build_world
     from rlgp_exec.world.render import render_world
 
@@ -132,7 +137,7 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
     def load() -> str:
         from rlgp_exec.perception.runner import perturbed_scene
 
-        scene = load_scene(scene_path(scene_name))
+        scene = load_scene(resolve_scene(scene_name))
         truth = perturbed_scene(scene, PERTURB_M, seed)
         path = out / "demo_world.toml"
         path.write_text(scene_to_toml(truth))

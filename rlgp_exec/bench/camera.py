@@ -17,6 +17,7 @@ over Zenoh and :class:`~rlgp_exec.executive.camera_source.CameraObjects` on its 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import platform
@@ -32,11 +33,14 @@ from rlgp_exec.executive.executive import Executive
 from rlgp_exec.executive.runner import RunOptions, connect, goal_objects
 from rlgp_exec.executive.world import ZenohMocap
 from rlgp_exec.scene import load_scene
+from rlgp_exec.scene.shipped import shipped_scene_path
 from rlgp_exec.sim.robot_process import RobotProcess
 
 __all__ = ["SCENE", "run_camera_bench"]
 
-SCENE = Path(__file__).resolve().parents[1] / "sim" / "scenes" / "sorting_hsr.toml"
+log = logging.getLogger(__name__)
+
+SCENE = shipped_scene_path("sorting_hsr")
 
 
 def _p(xs: list[float], q: float) -> float | None:
@@ -148,6 +152,7 @@ def run_camera_bench(scene_path: Path = SCENE, seconds: float = 10.0, seed: int 
         truth = ZenohMocap(hal.session)  # type: ignore[attr-defined]
         try:
             time.sleep(1.0)
+            log.info("standing still: %.0f s of head-camera poses against the truth", seconds)
             stand = _standing(hal, objects, truth, seconds)
             robot_stats = _robot_stats(hal)
             stats = objects.stats()
@@ -156,6 +161,7 @@ def run_camera_bench(scene_path: Path = SCENE, seconds: float = 10.0, seed: int 
             truth.close()
             objects.close()
             hal.shutdown()
+    log.info("time to first motion: a task with the camera in the loop")
     motion = _first_motion(scene_path, seed)
     errors = stand.pop("errors")
     return {

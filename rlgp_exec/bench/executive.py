@@ -81,13 +81,16 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
                 os.kill(proc.pid, signal.SIGCONT)
             expected = "stale_state" if stall else None
             got = out.violation.monitor if out.violation else out.status.value
+            what = "stall" if stall else "estop"
             if (stall and out.violation is not None and out.violation.monitor == expected) or (
                 not stall and out.status is ActStatus.ESTOPPED
             ):
                 reactions.append((t_react - injected[0]) * 1e3)
-                kinds.append("stall" if stall else "estop")
+                kinds.append(what)
+                log.info("fault %d/%d (%s): held after %.1f ms", k + 1, n_faults, what, reactions[-1])
             else:
-                failures.append(f"fault {k} ({'stall' if stall else 'estop'}): {got}")
+                failures.append(f"fault {k} ({what}): {got}")
+                log.info("fault %d/%d (%s): NOT handled: %s", k + 1, n_faults, what, got)
             # recover: re-arm, wait for fresh state
             signals.estop.clear()
             if hal.lifecycle.name == "ESTOPPED":
@@ -102,12 +105,26 @@ def _fault_reactions(scene_path: Path, n_faults: int) -> tuple[list[float], list
     return reactions, kinds, failures
 
 
+#: the loggers that warn about the faults the bench injects (an e-stop latched, a stale state, a phase
+#: stopped): expected here, so logged at INFO
+FAULT_LOGGERS = (
+    "rlgp_exec.executive.act", "rlgp_exec.hal.interface", "rlgp_exec.hal.zenoh_backend", "rlgp_exec.hal.validate",
+    "rlgp_exec.executive.executive", "rlgp_exec.executive.monitors", "rlgp_exec.executive.states",
+)
+
+
 def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50, seed: int = 0) -> dict:
+    from rlgp_exec.expected_log import expected_warnings
+
+    log.info("task: %s on a sim-robot process over Zenoh (sense, plan, time, act, verify)", task_scene.name)
     with RobotProcess(task_scene) as robot:
         opts = RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed, objects="mocap")
         result, ex = run_task(load_scene(task_scene), opts)
     errs = ex.actor.clock.period_err_ms
-    reactions, kinds, failures = _fault_reactions(fault_scene, n_faults)
+    log.info("task: %s in %.1f s planning, %.1f s execution; now %d faults while the arm moves",
+             result.status.value, result.planning_time_s, result.execution_time_s, n_faults)
+    with expected_warnings(FAULT_LOGGERS):
+        reactions, kinds, failures = _fault_reactions(fault_scene, n_faults)
     by_kind = {k: [r for r, kk in zip(reactions, kinds, strict=True) if kk == k] for k in ("estop", "stall")}
     return {
         "task": "executive",

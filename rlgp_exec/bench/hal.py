@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import platform
 import socket
@@ -27,6 +28,8 @@ from rlgp_exec.hal.types import JointSetpoint
 from rlgp_exec.hal.zenoh_keys import session_config
 
 __all__ = ["run_hal_bench"]
+
+log = logging.getLogger(__name__)
 
 
 def _port() -> int:
@@ -134,8 +137,11 @@ def _can_rate(seconds: float) -> float:
 
 
 def run_hal_bench(pings: int = 1000, seconds: float = 3.0) -> dict[str, Any]:
+    log.info("zenoh: %d query round trips", pings)
     rtt = _zenoh_rtt(pings)
+    log.info("zenoh: state stream and a 100 Hz loop for %.0f s", seconds)
     state_rate, loop_err = _zenoh_loop(seconds)
+    log.info("can: frame rate over a virtual bus for %.0f s", seconds)
     can_rate = _can_rate(seconds)
     return {
         "task": "hal",

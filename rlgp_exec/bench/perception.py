@@ -8,11 +8,11 @@ images (the same world without tag textures, plus noise and blank frames) measur
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import platform
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,12 +26,15 @@ from rlgp_exec.perception.pose import rotation_angle
 from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.perception.rendered_camera import ImageEffects, render_camera
 from rlgp_exec.scene import load_scene
+from rlgp_exec.scene.shipped import shipped_scene_path
 from rlgp_exec.world.pybullet_world import build_world
 
 __all__ = ["DISTANCES", "look_at", "run_perception_bench"]
 
+log = logging.getLogger(__name__)
+
 DISTANCES = (0.4, 0.6, 0.8, 1.0, 1.25, 1.5)
-SCENE = Path(__file__).resolve().parent.parent / "sim" / "scenes" / "sorting_hsr.toml"
+SCENE = shipped_scene_path("sorting_hsr")
 
 
 def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -71,6 +74,7 @@ def run_perception_bench(seed: int = 0, views_per_distance: int = 12, negatives:
     try:
         names = [o.name for o in scene.objects if o.tag is not None]
         for d in DISTANCES:
+            log.info("%s: %d views at %.2f m (%s)", scene.name, views_per_distance, d, ", ".join(detectors))
             for k in range(views_per_distance):
                 name = names[k % len(names)]
                 tag = world.tag_pose(name)[:3, 3]

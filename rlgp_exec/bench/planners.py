@@ -20,7 +20,6 @@ import logging
 import multiprocessing as mp
 import os
 import platform
-import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -112,11 +111,11 @@ def _failed(planner: str, seed: int, reason: str, t0: float) -> tuple[dict, list
 
 def _report(record: dict, done: int, total: int) -> None:
     ok = record["success"]
-    print(
-        f"  [{done:3d}/{total}] seed {record['seed']:3d} {record['planner']:5s} {'ok  ' if ok else 'FAIL'} "
-        f"{record['planning_time_s']:7.2f} s {'' if ok else record['reason'][:100]}",
-        file=sys.stderr,
-    )
+    cpu = record.get("cpu_s")
+    spent = f"{cpu:7.2f} s CPU " if cpu is not None else ""
+    log.info("[%3d/%d] seed %3d %-5s %s %s%7.2f s wall %s", done, total, record["seed"], record["planner"],
+             "ok  " if ok else "FAIL", spent, record.get("wall_s", record["planning_time_s"]),
+             "" if ok else record["reason"][:100])
 
 
 def _submit_all(
@@ -177,8 +176,11 @@ def run_planner_bench(
         raise RlgpError(f"--workers {workers}: must be at least 1")
     scene_path = str(Path(scene_path).resolve())
     base = load_scene(scene_path)
+    log.info("%s: the reachability graph (built once, cached for the runs)", base.name)
     _, stats = load_or_build(base)  # once, before any worker: they all read the cache
     jobs = [(seed, name) for seed in range(seeds) for name in planners]  # interleaved, seed by seed
+    log.info("%s: %d runs (%d seeds x %s), each in a process of its own", base.name, len(jobs), seeds,
+             ",".join(planners))
     t0 = time.perf_counter()
     if cluster:
         results = _on_cluster(jobs, cluster, scene_path, limits)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import platform
 import time
 
@@ -13,6 +14,8 @@ from rlgp_exec.timing.streamer import TRACKING_HEADROOM, Streamer
 from rlgp_exec.timing.toppra_param import PchipPath, _solve, time_parameterize
 
 __all__ = ["constant_velocity_duration", "run_timing_bench"]
+
+log = logging.getLogger(__name__)
 
 
 def constant_velocity_duration(path: np.ndarray, limits: JointLimits) -> float:
@@ -40,6 +43,7 @@ def run_timing_bench(seed: int = 0, repeats: int = 50, cycles: int = 2000) -> di
     lo = np.where(np.isfinite(arm.lower), arm.lower, -np.pi)
     hi = np.where(np.isfinite(arm.upper), arm.upper, np.pi)
     runs, toppra_ms, solve_ms, ratios = [], [], [], []
+    log.info("TOPPRA: %d random 10-waypoint PR2 arm paths", repeats)
     for i in range(repeats):
         path = rng.uniform(lo + 0.1, hi - 0.1, size=(10, arm.n))
         t0 = time.perf_counter()
@@ -72,6 +76,7 @@ def run_timing_bench(seed: int = 0, repeats: int = 50, cycles: int = 2000) -> di
         raise RuntimeError(f"bench path could not be timed: {there.reason} / {back.reason}")
     ref, legs = there.trajectory, (there.trajectory, back.trajectory)
     _, q_ref, _, _ = ref.sample_rate(1000.0, wrap=False)
+    log.info("Ruckig streamer: %d cycles at 100 Hz on the HSR's base and arm", cycles)
     streamer = Streamer(lim8, 0.01, q0)
     streamer.follow(ref)
     cycle_us, ruckig_us, calls, track_err, path_dev, first_pass = [], [], [], [], [], True

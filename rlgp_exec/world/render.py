@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -13,7 +14,7 @@ from rlgp_exec.errors import RlgpError
 from rlgp_exec.scene import Scene
 from rlgp_exec.world.pybullet_world import World, build_world
 
-__all__ = ["VIEWS", "render_scene_png", "render_world"]
+__all__ = ["VIEWS", "Camera", "camera", "render_scene_png", "render_world"]
 
 log = logging.getLogger(__name__)
 VIEWS = ("overview", "top", "robot")
@@ -29,8 +30,16 @@ def _scene_bounds(world: World) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def render_world(world: World, width: int = 960, height: int = 720, view: str = "overview") -> np.ndarray:
-    """An RGB image (height, width, 3) uint8 of the world, rendered headless (TinyRenderer)."""
+class Camera(NamedTuple):
+    """PyBullet's view and projection matrices (16 floats each, column-major)."""
+
+    view: tuple[float, ...]
+    projection: tuple[float, ...]
+
+
+def camera(world: World, width: int = 960, height: int = 720, view: str = "overview") -> Camera:
+    """The camera ``view`` of the world as it is now; an animation keeps one, so the view does not follow the
+    robot's bounds from frame to frame (the ``robot`` view is the head camera: it moves with the head)."""
     if view not in VIEWS:
         raise RlgpError(f"unknown view {view!r}; valid: {list(VIEWS)}")
     if width < 16 or height < 16:
@@ -53,8 +62,17 @@ def render_world(world: World, width: int = 960, height: int = 720, view: str = 
             yaw = float(np.degrees(world.scene.robot.base[2])) - 35.0
             view_m = p.computeViewMatrixFromYawPitchRoll(centre.tolist(), 1.0 * span + 1.2, yaw, -38, 0, 2)
         proj = p.computeProjectionMatrixFOV(50.0, aspect, 0.05, 50.0)
+    return Camera(tuple(view_m), tuple(proj))
+
+
+def render_world(
+    world: World, width: int = 960, height: int = 720, view: str = "overview", cam: Camera | None = None
+) -> np.ndarray:
+    """An RGB image (height, width, 3) uint8 of the world, rendered headless (TinyRenderer); ``cam``: a fixed
+    camera (default: ``view`` framed on the world as it is now)."""
+    c = cam if cam is not None else camera(world, width, height, view)
     _, _, rgba, _, _ = p.getCameraImage(
-        width, height, view_m, proj, renderer=p.ER_TINY_RENDERER, shadow=1,
+        width, height, c.view, c.projection, renderer=p.ER_TINY_RENDERER, shadow=1,
         lightDirection=[1.0, 0.6, 2.0], physicsClientId=world.client,
     )
     return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]

@@ -1,0 +1,70 @@
+"""``--gui``: the motion in PyBullet's own window, where a display exists.
+
+The window shows the same world the headless renderer draws (``sim.world``), played in real time by a
+player of ``animate`` (a plan's timed trajectory or a recording); it stays open until it is closed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+from rlgp_exec.errors import RlgpError
+
+__all__ = ["require_display", "show_plan", "show_recording"]
+
+log = logging.getLogger(__name__)
+
+
+def require_display() -> None:
+    """Raise RlgpError (bad input: exit 2) where no X display is set: PyBullet's GUI would abort the process."""
+    if not os.environ.get("DISPLAY"):
+        raise RlgpError(
+            "--gui opens PyBullet's window and needs a display, but $DISPLAY is not set "
+            "(use --animate FILE.gif|mp4 to render the motion headless, or ssh -X / a desktop session)"
+        )
+
+
+def _play(scene, make_player, hold: bool = True) -> None:
+    import pybullet as p
+
+    from rlgp_exec.world.pybullet_world import build_world
+
+    require_display()
+    cid = p.connect(p.GUI)
+    if cid < 0:
+        raise RlgpError(f"PyBullet could not open its window on display {os.environ.get('DISPLAY')!r}")
+    try:
+        world = build_world(scene, cid)
+        duration, set_time = make_player(world)
+        log.info("gui: playing %.1f s of motion; close the window to go on", duration)
+        t0 = time.monotonic()
+        while p.isConnected(cid):
+            t = time.monotonic() - t0
+            set_time(min(t, duration))
+            if t >= duration and not hold:
+                break
+            time.sleep(1 / 30)
+    except p.error:  # the window was closed mid-update
+        pass
+    finally:
+        if p.isConnected(cid):
+            p.disconnect(cid)
+
+
+def show_plan(scene, timed, hold: bool = True) -> None:
+    """Play a timed plan of ``scene`` in PyBullet's window."""
+    from rlgp_exec.animate import plan_player
+
+    _play(scene, lambda world: (timed.duration_s, plan_player(world, timed)), hold)
+
+
+def show_recording(path: str | Path, hold: bool = True) -> None:
+    """Play a recording in PyBullet's window."""
+    from rlgp_exec.animate import recording_player
+    from rlgp_exec.executive.replay import load_replay
+
+    inp = load_replay(path)
+    _play(inp.scene, lambda world: recording_player(world, inp), hold)
