@@ -52,6 +52,7 @@ def test_an_object_too_small_to_see_is_planned_unverified_and_verified_once_the_
         src.near = True
         ex._verified(src.poses())
         assert ex.unverified == {} and events[-1] == ("verified", {"object": "block_green"})
+        assert list(ex.verified) == ["block_green"]
         # the world check compares it with the plan from now on: seen 3 cm off, it is a move
         hal.sim.push_object("block_green", 0.03, 0.0)
         phase = Phase(np.array([ex.model.home(scene.robot.base)]), None, grasp="block_green")

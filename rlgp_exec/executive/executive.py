@@ -141,6 +141,7 @@ class Executive:
         #: objects the goal names that the camera has not seen (why): planned on their prior pose, verified
         #: when the camera sees them (a move beyond the tolerance replans), looked for again on a replan
         self.unverified: dict[str, str] = {}
+        self.verified: dict[str, str] = {}  # the task's objects once unverified, and how the camera saw them
         self.last_look: object | None = None  # the last look_for's result (the camera's LookResult)
         self.last_plan: Plan | None = None
 
@@ -258,6 +259,8 @@ class Executive:
             return False
         self.last_look = found
         whys = dict(found.undetectable)
+        for n in sorted(set(self.unverified) - found.unverified):
+            self.verified[n] = f"seen looking for it ({found.views} head views)"
         self.unverified = {n: whys.get(n, "not seen") for n in sorted(found.unverified)}
         self._event("look_for", seen=sorted(found.seen), missing=sorted(found.missing), views=found.views,
                     elapsed_s=found.elapsed_s, detail=found.detail, unverified=dict(self.unverified))
@@ -273,6 +276,7 @@ class Executive:
         """Unverified objects the camera now sees are verified (the world check compares them with the plan)."""
         for name in sorted(set(self.unverified) & set(poses)):
             del self.unverified[name]
+            self.verified[name] = f"seen during {self.sm.state.name.lower()}"
             log.info("camera: %s seen (verified), %.3f m from its planned pose", name, float(np.linalg.norm(
                 poses[name][:3, 3] - self.scene.object(name).T[:3, 3])))
             self._event("verified", object=name)
@@ -431,6 +435,7 @@ class Executive:
         except SceneError as e:
             return _End(TaskStatus.INVALID_GOAL, str(e), "invalid goal")
         self._event("goal", literals=[str(g) for g in goal.literals])
+        self.unverified, self.verified = {}, {}
         self.sense(wait_s=self.robot_wait_s)
         if self._look_for(goal):
             self.sense()
