@@ -460,7 +460,8 @@ class CameraObjects(ObjectSource):
         # an object whose tag no view from here shows large enough is reported now, not searched for
         undetectable = {} if q_found is None else self._undetectable(sorted(wanted - seen()), q_found)
         searched = wanted - set(undetectable)
-        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: searched <= seen())
+        # the images streaming now first: a tag near the detector's limit may still be decoded
+        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: wanted <= seen())
         activated = False
         try:
             for name in sorted(searched - seen()):
@@ -505,8 +506,9 @@ class CameraObjects(ObjectSource):
 
     def _undetectable(self, names: Sequence[str], q: FloatArray) -> dict[str, str]:
         """Why each of ``names`` cannot be detected from the base pose of ``q``: its tag at its believed
-        pose (the estimate, else the scene's) too small from the best head view, or no free view of it."""
-        need = MIN_SIDE_MARGIN * self.perception.detector.min_side_px
+        pose (the estimate, else the scene's) under the detector's minimum from the best head view, or no
+        free view of it."""
+        need = self.perception.detector.min_side_px
         with self._lock:
             ests = self.perception.tracker.estimates()
         out = {}
