@@ -74,7 +74,8 @@ CONFIRM = 2  # images in a row that must agree before an object counts as moved 
 # at 0.6-1.2 m, so the tracker's default 6 sigma took a 6 cm push for noise and blended it in over seconds
 GATE_SIGMA = 2.5
 GATE_MIN_M = 0.02
-MIN_SIDE_MARGIN = 1.3  # look_for: a view whose tag would be under this x the detector's minimum is skipped
+MIN_SIDE_MARGIN = 1.3  # look_for: a view of another place whose tag would be under this x the detector's minimum
+# is skipped (a view of where the object is believed to be is taken down to the minimum itself)
 HEARTBEAT_WAIT_S = 1.0  # [s] look_for waits this long for fresh robot state before it gives up
 
 
@@ -465,13 +466,15 @@ class CameraObjects(ObjectSource):
         activated = False
         try:
             for name in sorted(searched - seen()):
-                for point in candidate_points(self.scene, name)[:views_per_object]:
+                for i, point in enumerate(candidate_points(self.scene, name)[:views_per_object]):
                     if detail or name in seen() or time.monotonic() - t0 > timeout_s:
                         break
                     if hal.lifecycle is Lifecycle.INACTIVE:
                         hal.activate()
                         activated = True
-                    why = self._point_head(hal, point, name)
+                    # where it is believed to be: worth a view down to the detector's limit; elsewhere with margin
+                    margin = 1.0 if i == 0 else MIN_SIDE_MARGIN
+                    why = self._point_head(hal, point, name, margin)
                     if why is None:  # the head cannot point there, or the tag would be too small to see
                         too_far.add(name)
                         continue
@@ -546,12 +549,14 @@ class CameraObjects(ObjectSource):
         sizes = [m.size for m in (self.registry.get(i) for i in self.registry.ids) if m and m.object == name]
         return self.head_views.tag_side_px(q, point, max(sizes, default=0.0))
 
-    def _point_head(self, hal: RobotInterface, point: FloatArray, name: str, tries: int = 3) -> str | None:
+    def _point_head(
+        self, hal: RobotInterface, point: FloatArray, name: str, margin: float = MIN_SIDE_MARGIN, tries: int = 3
+    ) -> str | None:
         """Move the head to look at ``point``: '' when done, None when the head cannot point there, else
         why it stopped. A heartbeat lost for a moment (a loaded machine) pauses the move; it starts again
         from the measured state once the state is fresh, up to ``tries`` times."""
         for _ in range(tries):
-            why = self._head_move(hal, point, name)
+            why = self._head_move(hal, point, name, margin)
             if why != "stale":
                 return why
             end = time.monotonic() + HEARTBEAT_WAIT_S
@@ -569,7 +574,7 @@ class CameraObjects(ObjectSource):
             q[self.model.index(n)] = st.position(n)
         return q
 
-    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str) -> str | None:
+    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str, margin: float) -> str | None:
         q = self._measured_q(hal)
         if q is None:
             return "stale"
@@ -577,7 +582,7 @@ class CameraObjects(ObjectSource):
         if not isinstance(view, HeadView):
             log.debug("look_for: no view of %s at %s: %s", name, np.round(point, 3), view)
             return None
-        if self._tag_side_px(name, view.q, point) < MIN_SIDE_MARGIN * self.perception.detector.min_side_px:
+        if self._tag_side_px(name, view.q, point) < margin * self.perception.detector.min_side_px:
             return None
         return self._move_head(hal, q, view.q)
 
