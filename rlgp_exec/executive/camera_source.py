@@ -461,8 +461,8 @@ class CameraObjects(ObjectSource):
         # an object whose tag no view from here shows large enough is reported now, not searched for
         undetectable = {} if q_found is None else self._undetectable(sorted(wanted - seen()), q_found)
         searched = wanted - set(undetectable)
-        # the images streaming now first: a tag near the detector's limit may still be decoded
-        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: wanted <= seen())
+        # the images streaming now first (not waiting for what no image from here can show)
+        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: searched <= seen())
         activated = False
         try:
             for name in sorted(searched - seen()):
