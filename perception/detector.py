@@ -108,13 +108,16 @@ class TagDetector:
                 rejected.append((tag_id, f"tag {tag_id} is {side:.1f} px across, under {self.min_side_px:.0f} px"))
                 continue
             found.append(TagDetection(tag_id, corners, side))
+        for _, why in rejected:  # a far tag is expected (and in the result), every frame at a camera's rate
+            log.debug("tag rejected: %s", why)
         ids = [d.tag_id for d in found]
         dup = {i for i in ids if ids.count(i) > 1}
         if dup:  # the same id twice in one image: cannot tell which is the object's
-            rejected += [(i, f"tag {i} seen {ids.count(i)} times in one image") for i in sorted(dup)]
+            twice = [(i, f"tag {i} seen {ids.count(i)} times in one image") for i in sorted(dup)]
+            for _, why in twice:
+                log.warning("tag rejected: %s", why)
+            rejected += twice
             found = [d for d in found if d.tag_id not in dup]
-        for _, why in rejected:
-            log.warning("tag rejected: %s", why)
         return DetectionResult(ImageStatus.OK, tuple(found), tuple(rejected), ms)
 
     def _detect_opencv(self, gray: np.ndarray) -> list[tuple[int, FloatArray]]:

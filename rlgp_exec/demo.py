@@ -7,8 +7,9 @@ perceived scene replaces the file's poses. Robot: ``sim-robot`` runs the true wo
 and speaks the HSR's Zenoh interface, its head camera (``rlgp_exec.sim.camera_node``) rendered in a process of
 its own and published as ROS 2 images. Camera: the executive's camera source reads those images over
 Zenoh, points the head at the task's objects and reports each one's error against the true world.
-Executive: SENSE (the robot's state; object poses from the server's mocap stream: the camera source does
-not yet see a drawer's opening or contents, nor objects too small to detect from where the robot stands),
+Executive: SENSE (the robot's state; object poses from the server's mocap stream by default: the camera
+source does not see a drawer's opening, nor what is inside a closed drawer; ``objects="camera"`` senses by
+the head camera, objects too small to detect from where the robot stands planned unverified),
 PLAN (R-LGP, validated by replay), TIME (TOPPRA), ACT (Ruckig at 100 Hz over Zenoh, monitored), VERIFY (the
 goal literals on the sensed poses). Everything is recorded to MCAP; the
 base path is plotted from the recording.
@@ -33,6 +34,9 @@ log = logging.getLogger(__name__)
 DEMO_SCENE = "table_clearing_hsr"  # the R-LGP paper's task: knob, drawer, cup against a wall, drops
 DEMO_SCENES = ("table_clearing_hsr", "sorting_hsr")  # HSR scenes with tagged objects
 PERTURB_M = 0.04  # [m] how far the true objects are from the file
+# the executive's object source: mocap, as the camera source cannot see a drawer's opening (the table
+# clearing task opens one) nor what is inside a closed drawer
+DEMO_OBJECTS = "mocap"
 
 
 @dataclass
@@ -119,9 +123,12 @@ def _plot_base_path(recording: Path, out: Path) -> None:
     plt.close(fig)
 
 
-def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoReport:
+def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE, objects: str = DEMO_OBJECTS) -> DemoReport:
     """Run the dry run on an HSR scene with tagged objects (a shipped scene's name or a scene file, as
-    ``scene_arg.resolve_scene`` reads it); files go to ``out``."""
+    ``scene.shipped.resolve_scene`` reads it); files go to ``out``; ``objects``: the executive's object
+    source ("mocap" or "camera")."""
+    if objects not in ("mocap", "camera"):
+        raise RlgpError(f"demo objects {objects!r}: valid: ['mocap', 'camera']")
     import cv2
 
     from rlgp_exec.scene import load_scene
@@ -193,18 +200,19 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
             tagged = sorted(o.name for o in truth.objects if o.tag is not None)  # type: ignore[attr-defined]
             found = objects.look_for(tagged, hal)
             poses = objects.poses()
-            errs = [
-                f"{n} {np.linalg.norm(poses[n][:3, 3] - truth.object(n).T[:3, 3]) * 1e3:.1f} mm"  # type: ignore[attr-defined]
-                for n in tagged if n in poses
-            ]
-            if not errs:
+            whys = dict(found.undetectable)
+            lines = []
+            for n in tagged:
+                if n in poses:
+                    e = np.linalg.norm(poses[n][:3, 3] - truth.object(n).T[:3, 3]) * 1e3  # type: ignore[attr-defined]
+                    lines.append(f"{n} by camera {e:.1f} mm from the truth")
+                else:
+                    lines.append(f"{n} not seen ({whys.get(n, 'not in any view').removeprefix(n + ': ')})")
+            if not poses:
                 raise RlgpError(f"the head camera saw none of {tagged}: {found.detail}")
             st = objects.stats()
-            missing = f"; from the start pose: {found.detail}" if found.missing else ""
-            return (
-                f"by the head camera over Zenoh ({found.views} head views, {st['frames']} images): "
-                f"{', '.join(errs)} from the truth{missing}"
-            )
+            head = f"by the head camera over Zenoh ({found.views} head views, {st['frames']} images)"
+            return f"{head}: {'; '.join(lines)}"
         finally:
             objects.close()
             hal.shutdown()
@@ -213,15 +221,20 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         from rlgp_exec.executive.runner import RunOptions, run_task
 
         rec = out / "demo.mcap"
-        # by mocap: the camera source cannot yet see a drawer's opening or contents, nor find an object too
-        # small to detect from the start base (sorting_hsr's block_green), and VERIFY then fails on it
-        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects="mocap")  # type: ignore[arg-type]
-        result, _ = run_task(state["perceived"], opts)  # type: ignore[arg-type]
+        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects=objects)  # type: ignore[arg-type]
+        result, ex = run_task(state["perceived"], opts)  # type: ignore[arg-type]
         report.files.append(rec)
         state["recording"] = rec
+        if objects == "mocap":
+            how = "objects sensed by the mocap stream (the simulation's truth)"
+        else:
+            how = "objects sensed by the head camera"
+            if ex.verified:
+                how += "; planned unverified, then verified: " + ", ".join(f"{n} {w}" for n, w in ex.verified.items())
+            if ex.unverified:
+                how += f"; never verified: {sorted(ex.unverified)}"
         if not result.ok:
-            raise RlgpError(f"{result.status.value}: {result.detail}")
-        how = "objects sensed by the mocap stream"
+            raise RlgpError(f"{how}: {result.status.value}: {result.detail}")
         return (
             f"{how}; {' '.join(result.executed)}; planning {result.planning_time_s:.1f} s ({result.plans} plan(s), "
             f"{result.replans} replan(s)), first motion after {result.time_to_first_motion_s:.1f} s, execution "

@@ -363,6 +363,10 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
             assert st is not None and abs(st.position("head_pan_joint") - pan0) < 0.02  # and back where it was
             unseen = objects.look_for(["block_green", "tray_blue"], hal, timeout_s=5.0)
             assert not unseen.ok and "tray_blue" in unseen.missing  # not an object with a tag: said so
+            # block_green's tag is ~6 px from the start base: reported with why, not searched for
+            assert unseen.unverified == {"block_green"} and unseen.views == 0
+            why = dict(unseen.undetectable)["block_green"]
+            assert "px tag side from here" in why and "needs >= 10 px" in why and why in unseen.detail
         finally:
             objects.close()
             hal.shutdown()

@@ -11,7 +11,8 @@ over Zenoh and :class:`~rlgp_exec.executive.camera_source.CameraObjects` on its 
   ``frames_processed_per_s``, ``loop_period_err_ms_p99`` (the HAL client's loop) and
   ``robot_loop_period_err_ms_p99`` (the robot server's own 100 Hz loop, from its stats);
 * ``time_to_first_motion_s``: from the goal to the first setpoint of a fresh executive, sensing by
-  camera included (``look_for`` on the goal's objects, then SENSE and PLAN); the task is then cancelled.
+  camera included (its SENSE: ``look_for`` on the goal's objects; then PLAN and timing), split into the
+  stages' times; the task is then cancelled.
 """
 
 from __future__ import annotations
@@ -28,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from rlgp_exec.executive.camera_source import CameraObjects
+from rlgp_exec.executive.camera_source import CameraObjects, LookResult
 from rlgp_exec.executive.executive import Executive
-from rlgp_exec.executive.runner import RunOptions, connect, goal_objects
+from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.executive.world import ZenohMocap
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.shipped import shipped_scene_path
@@ -113,7 +114,6 @@ def _first_motion(scene_path: Path, seed: int) -> dict[str, Any]:
             time.sleep(1.0)  # the camera streaming, as on a robot that has been on for a while
             ex = Executive(hal, scene, objects, seed=seed)
             t0 = time.perf_counter()
-            found = objects.look_for(goal_objects(scene), hal)
             first: list[float] = []
 
             def watch() -> None:  # cancel once the robot has been commanded: the figure is taken
@@ -126,16 +126,21 @@ def _first_motion(scene_path: Path, seed: int) -> dict[str, Any]:
 
             w = threading.Thread(target=watch, daemon=True)
             w.start()
-            res = ex.run()
+            res = ex.run()  # SENSE (look_for included), PLAN, timing, the first setpoint
             w.join(timeout=1.0)
-            plan_to_motion = res.time_to_first_motion_s
+            found = ex.last_look
+            assert isinstance(found, LookResult), "the executive did not look with the camera"
+            ttfm = res.time_to_first_motion_s
             return {
                 "look_for_s": found.elapsed_s,
                 "seen": sorted(found.seen),
                 "not_seen": sorted(found.missing),
+                "undetectable": dict(found.undetectable),
                 "head_views": found.views,
                 "planning_time_s": res.planning_time_s,
-                "time_to_first_motion_s": None if plan_to_motion is None else found.elapsed_s + plan_to_motion,
+                # the rest: the SENSE steps around look_for, the planner's set-up, timing, the actor's start
+                "other_s": None if ttfm is None else ttfm - found.elapsed_s - res.planning_time_s,
+                "time_to_first_motion_s": ttfm,
                 "time_to_first_motion_watch_s": first[0] if first else None,
                 "status": res.status.value,
             }

@@ -35,6 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from rlgp_exec.executive.head_view import HeadView, HeadViews
 from rlgp_exec.executive.world import ObjectSource
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
@@ -48,7 +49,6 @@ from rlgp_exec.perception.look_around import candidate_points
 from rlgp_exec.perception.pipeline import Perception
 from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.perception.tracker import ObjectEstimate, ObjectTracker
-from rlgp_exec.robot.head import look_at_q, pointing_error
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 
@@ -74,7 +74,8 @@ CONFIRM = 2  # images in a row that must agree before an object counts as moved 
 # at 0.6-1.2 m, so the tracker's default 6 sigma took a 6 cm push for noise and blended it in over seconds
 GATE_SIGMA = 2.5
 GATE_MIN_M = 0.02
-MIN_SIDE_MARGIN = 1.3  # look_for: a view whose tag would be under this x the detector's minimum is skipped
+MIN_SIDE_MARGIN = 1.3  # look_for: a view of another place whose tag would be under this x the detector's minimum
+# is skipped (a view of where the object is believed to be is taken down to the minimum itself)
 HEARTBEAT_WAIT_S = 1.0  # [s] look_for waits this long for fresh robot state before it gives up
 
 
@@ -168,10 +169,17 @@ class LookResult:
     views: int  # head poses commanded
     elapsed_s: float
     detail: str
+    #: (object, why) wanted objects no view from where the robot stands shows large enough: not searched for
+    undetectable: tuple[tuple[str, str], ...] = ()
 
     @property
     def ok(self) -> bool:
         return not self.missing
+
+    @property
+    def unverified(self) -> frozenset[str]:
+        """Tagged objects wanted and not seen: planned on their prior pose until the camera sees them."""
+        return self.missing - self.untagged
 
 
 class CameraObjects(ObjectSource):
@@ -197,6 +205,7 @@ class CameraObjects(ObjectSource):
         self.registry = TagRegistry.from_scene(scene)
         tracker = ObjectTracker(max_age_s=max_age_s, gate_sigma=GATE_SIGMA, gate_min_m=GATE_MIN_M, confirm=CONFIRM)
         self.perception = Perception(self.registry, camera_for_robot(model.name), TagDetector(detector), tracker)
+        self.head_views = HeadViews(model, scene, self.perception.camera)  # look_for's thread only (PyBullet)
         self.rejects = RejectCounter("camera")
         self.history = StampedHistory(model, self.rejects)
         self.frames = 0  # images processed
@@ -448,18 +457,24 @@ class CameraObjects(ObjectSource):
         def seen() -> set[str]:
             return set(self._fresh(wanted, MIN_OBSERVATIONS))
 
-        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: wanted <= seen())
-        activated = False
         q_found = self._measured_q(hal)
+        # an object whose tag no view from here shows large enough is reported now, not searched for
+        undetectable = {} if q_found is None else self._undetectable(sorted(wanted - seen()), q_found)
+        searched = wanted - set(undetectable)
+        # the images streaming now first (not waiting for what no image from here can show)
+        self._wait_frames(2, t0 + min(timeout_s, 2.0), lambda: searched <= seen())
+        activated = False
         try:
-            for name in sorted(wanted - seen()):
-                for point in candidate_points(self.scene, name)[:views_per_object]:
+            for name in sorted(searched - seen()):
+                for i, point in enumerate(candidate_points(self.scene, name)[:views_per_object]):
                     if detail or name in seen() or time.monotonic() - t0 > timeout_s:
                         break
                     if hal.lifecycle is Lifecycle.INACTIVE:
                         hal.activate()
                         activated = True
-                    why = self._point_head(hal, point, name)
+                    # where it is believed to be: worth a view down to the detector's limit; elsewhere with margin
+                    margin = 1.0 if i == 0 else MIN_SIDE_MARGIN
+                    why = self._point_head(hal, point, name, margin)
                     if why is None:  # the head cannot point there, or the tag would be too small to see
                         too_far.add(name)
                         continue
@@ -482,9 +497,35 @@ class CameraObjects(ObjectSource):
             far = sorted(too_far & missing)
             if far:
                 detail += f" ({far}: no view from this base shows its tag large enough)"
+            whys = [why for n, why in sorted(undetectable.items()) if n in missing]
+            if whys:
+                detail += f" ({'; '.join(whys)})"
         if missing:
             log.warning("look_for: %s (%d head views)", detail, views)
-        return LookResult(frozenset(got), missing, untagged, views, time.monotonic() - t0, detail)
+        return LookResult(
+            frozenset(got), missing, untagged, views, time.monotonic() - t0, detail,
+            tuple((n, why) for n, why in sorted(undetectable.items()) if n in missing),
+        )
+
+    def _undetectable(self, names: Sequence[str], q: FloatArray) -> dict[str, str]:
+        """Why each of ``names`` cannot be detected from the base pose of ``q``: its tag at its believed
+        pose (the estimate, else the scene's) under the detector's minimum from the best head view, or no
+        free view of it."""
+        need = self.perception.detector.min_side_px
+        with self._lock:
+            ests = self.perception.tracker.estimates()
+        out = {}
+        for name in names:
+            est = ests.get(name)
+            point = candidate_points(self.scene, name, None if est is None else est.T_world_object[:3, 3])[0]
+            view = self.head_views.view(q, point)
+            if isinstance(view, str):
+                out[name] = f"{name}: {view}"
+                continue
+            side = self._tag_side_px(name, view.q, point)
+            if side < need:
+                out[name] = f"{name}: ~{side:.0f} px tag side from here, the detector needs >= {need:.0f} px"
+        return out
 
     def _wait_frames(self, n: int, deadline: float, done: Any, settle_s: float = 0.0) -> None:
         """Wait until ``n`` images taken after ``settle_s`` from now are processed, ``done()`` holds, or
@@ -503,21 +544,19 @@ class CameraObjects(ObjectSource):
             time.sleep(0.02)
 
     def _tag_side_px(self, name: str, q: FloatArray, point: FloatArray) -> float:
-        """The expected shortest side [px] of the tags of ``name`` at ``point`` (facing up, as on a standing
-        object) in the image taken at ``q``: the size across the distance, foreshortened by the angle."""
-        T = self.model.fk(q, self.camera_frame)
-        ray = T[:3, 3] - np.asarray(point, float)
-        d = float(np.linalg.norm(ray))
-        cam = self.perception.camera
+        """The expected shortest side [px] of the largest tag of ``name`` at ``point`` (facing up, as on a
+        standing object) in the image taken at ``q``."""
         sizes = [m.size for m in (self.registry.get(i) for i in self.registry.ids) if m and m.object == name]
-        return max(sizes, default=0.0) * cam.fx / max(d, 1e-6) * abs(float(ray[2])) / max(d, 1e-6)
+        return self.head_views.tag_side_px(q, point, max(sizes, default=0.0))
 
-    def _point_head(self, hal: RobotInterface, point: FloatArray, name: str, tries: int = 3) -> str | None:
+    def _point_head(
+        self, hal: RobotInterface, point: FloatArray, name: str, margin: float = MIN_SIDE_MARGIN, tries: int = 3
+    ) -> str | None:
         """Move the head to look at ``point``: '' when done, None when the head cannot point there, else
         why it stopped. A heartbeat lost for a moment (a loaded machine) pauses the move; it starts again
         from the measured state once the state is fresh, up to ``tries`` times."""
         for _ in range(tries):
-            why = self._head_move(hal, point, name)
+            why = self._head_move(hal, point, name, margin)
             if why != "stale":
                 return why
             end = time.monotonic() + HEARTBEAT_WAIT_S
@@ -535,16 +574,17 @@ class CameraObjects(ObjectSource):
             q[self.model.index(n)] = st.position(n)
         return q
 
-    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str) -> str | None:
+    def _head_move(self, hal: RobotInterface, point: FloatArray, name: str, margin: float) -> str | None:
         q = self._measured_q(hal)
         if q is None:
             return "stale"
-        q_view = look_at_q(self.model, q, point)
-        if pointing_error(self.model, q_view, point) > math.radians(5.0):
+        view = self.head_views.view(q, point)  # never a posture (or a way there) that collides
+        if not isinstance(view, HeadView):
+            log.debug("look_for: no view of %s at %s: %s", name, np.round(point, 3), view)
             return None
-        if self._tag_side_px(name, q_view, point) < MIN_SIDE_MARGIN * self.perception.detector.min_side_px:
+        if self._tag_side_px(name, view.q, point) < margin * self.perception.detector.min_side_px:
             return None
-        return self._move_head(hal, q, q_view)
+        return self._move_head(hal, q, view.q)
 
     def _move_head(self, hal: RobotInterface, q: FloatArray, q_target: FloatArray) -> str:
         """Move the head joints from ``q`` to ``q_target`` (full configurations) on a cosine profile: '' when

@@ -138,6 +138,11 @@ class Executive:
         self.T_tool_obj: FloatArray | None = None  # how it sits in the hand, as grasped (4, 4)
         self.knob: str | None = None  # the cabinet whose knob the hand holds
         self.openings: dict[str, float] = {}  # [m] sensed drawer openings
+        #: objects the goal names that the camera has not seen (why): planned on their prior pose, verified
+        #: when the camera sees them (a move beyond the tolerance replans), looked for again on a replan
+        self.unverified: dict[str, str] = {}
+        self.verified: dict[str, str] = {}  # the task's objects once unverified, and how the camera saw them
+        self.last_look: object | None = None  # the last look_for's result (the camera's LookResult)
         self.last_plan: Plan | None = None
 
     # ------------------------------------------------------------------ requests (any thread)
@@ -246,17 +251,35 @@ class Executive:
 
     def _look_for(self, goal: Goal) -> bool:
         """A source that can look (the camera): point the head until every object the goal names is seen,
-        or say which were not. False when the source cannot look."""
+        or say which were not (those are planned on their prior pose, unverified). False when the source
+        cannot look."""
         names = sorted({a for lit in goal.literals for a in lit.args} & {o.name for o in self.scene.objects})
         found = self.objects.look_for(names, self.hal)
         if found is None:
             return False
+        self.last_look = found
+        whys = dict(found.undetectable)
+        for n in sorted(set(self.unverified) - found.unverified):
+            self.verified[n] = f"seen looking for it ({found.views} head views)"
+        self.unverified = {n: whys.get(n, "not seen") for n in sorted(found.unverified)}
         self._event("look_for", seen=sorted(found.seen), missing=sorted(found.missing), views=found.views,
-                    elapsed_s=found.elapsed_s, detail=found.detail)
+                    elapsed_s=found.elapsed_s, detail=found.detail, unverified=dict(self.unverified))
         (log.info if found.ok else log.warning)(
             "sensing by camera: %s (%.2f s, %d head views)", found.detail, found.elapsed_s, found.views
         )
+        if self.unverified:
+            log.info("planning on the scene's poses of %s (unverified): verified when the camera sees them",
+                     sorted(self.unverified))
         return True
+
+    def _verified(self, poses: dict[str, FloatArray]) -> None:
+        """Unverified objects the camera now sees are verified (the world check compares them with the plan)."""
+        for name in sorted(set(self.unverified) & set(poses)):
+            del self.unverified[name]
+            self.verified[name] = f"seen during {self.sm.state.name.lower()}"
+            log.info("camera: %s seen (verified), %.3f m from its planned pose", name, float(np.linalg.norm(
+                poses[name][:3, 3] - self.scene.object(name).T[:3, 3])))
+            self._event("verified", object=name)
 
     def _goal(self, literals: Sequence[str] | None) -> Goal:
         if literals is None:
@@ -315,6 +338,8 @@ class Executive:
                 return None
             poses = self.objects.poses()
             self._record_detections(poses)
+            if self.unverified:
+                self._verified(poses)
             for o in plan_scene.objects:
                 if o.name in touched_before[k] or o.name in in_drawer:
                     continue
@@ -403,6 +428,7 @@ class Executive:
         except SceneError as e:
             return _End(TaskStatus.INVALID_GOAL, str(e), "invalid goal")
         self._event("goal", literals=[str(g) for g in goal.literals])
+        self.unverified, self.verified = {}, {}
         self.sense(wait_s=self.robot_wait_s)
         if self._look_for(goal):
             self.sense()
@@ -491,6 +517,8 @@ class Executive:
             prog.replans += 1
             prog.stage = "sensing"
             sm.to(S.SENSING, "replan from the current state")
+            if self.unverified:  # the robot has moved since: they may be in view, or large enough, now
+                self._look_for(goal)
             self.sense()
         return _End(TaskStatus.FAILED, f"goal not reached after {self.max_replans} replans", "replans exhausted")
 
