@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from rlgp_exec.executive.world import carried_along, stacks, update_scene
-from rlgp_exec.planning.feasibility import goal_manipulator
+from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.nlp.keyframes import Action, pinned_conflict
 from rlgp_exec.planning.rlgp import SEARCH_WEIGHT, RGCost, _planar_distance, plan_scene
 from rlgp_exec.planning.symbolic.grounding import ground_scene
@@ -146,6 +146,8 @@ def test_flat_objects_on_the_table_are_not_refused_by_the_tool_sphere():
             why = pinned_conflict(geo.model, thin, [Action("pick", obj)], manip, (), geo.mesh_hand, 0.0, (),
                                   geo.tip_points)
             assert why is not None and "table" in why
+            # nor is the goal's reachability check (its IK keeps the tool sphere off the table)
+            assert unreachable_goal(geo, ground_scene(sc, manipulators=[manip])) is None
         finally:
             geo.close()
 
