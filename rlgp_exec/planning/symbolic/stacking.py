@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 
-__all__ = ["ONE_OBJECT", "Stacking"]
+__all__ = ["ONE_OBJECT", "Stacking", "supports"]
 
 #: the support types that take one object, on top, only while clear
 ONE_OBJECT = ("slot", "movable")
@@ -89,7 +89,7 @@ class Stacking:
         on = supports(state)
         return sorted(o for o, ok in self.in_place(on).items() if not ok and o not in counted)
 
-    def ready(self, s: str, state: SymbolicState, on: dict[str, str], placed: dict[str, bool]) -> bool:
+    def ready(self, s: str, state: SymbolicState, placed: dict[str, bool]) -> bool:
         """Whether support ``s`` can take its goal object now: clear, and in place if it is an object."""
         return ("clear", s) in state and (s not in self.movable or placed.get(s, False))
 
@@ -109,4 +109,4 @@ class Stacking:
         placed = self.in_place(on)
         if a.name == "pick":  # it was in place before: the pick changed nothing below it
             return s == goal and (s not in self.movable or placed.get(s, False))
-        return s != goal and (o, goal) in self.put_downs and self.ready(goal, state, on, placed)
+        return s != goal and (o, goal) in self.put_downs and self.ready(goal, state, placed)
