@@ -186,3 +186,24 @@ def test_world_model_knows_what_rests_on_what_and_carries_it():
     # what is sensed is where it is sensed; an object in the hand is not carried by what it stood on
     assert "d_mid" not in carried_along(sc, {"d_large": moved, "d_mid": sc.object("d_mid").T})
     assert carried_along(sc, {"d_large": moved}, held="d_mid") == {}
+
+
+def test_nothing_is_set_down_on_a_goal_region_before_it_is_cleared():
+    problem = ground_scene(scene("obstacles_tower_pr2"), manipulators=["right_arm"])
+    st = Stacking(problem, {"goal_region"})
+    state = problem.init
+    for a, s in problem.successors(state):
+        if a.name == "pick" and a.args[1] == "b1":
+            put = next((x, t) for x, t in problem.successors(s) if x.name == "place" and x.args[2] == "goal_region")
+            assert st.prune([a, put[0]], put[1])  # o1 and o2 still stand there
+    # o1 and o2 moved to the table: b1 may go onto the region, o1 may not come back
+    cleared = set(state) - {("on", "o1", "goal_region"), ("on", "o2", "goal_region")}
+    cleared |= {("on", "o1", "table"), ("on", "o2", "table")}
+    held_b1 = frozenset(cleared - {("on", "b1", "table"), ("clear", "b1"), ("hand-empty", "right_arm")}
+                        | {("holding", "right_arm", "b1")})
+    place_b1 = next((x, t) for x, t in problem.successors(held_b1) if x.name == "place" and x.args[2] == "goal_region")
+    assert not st.prune([place_b1[0]], place_b1[1])
+    held_o1 = frozenset(cleared - {("on", "o1", "table"), ("clear", "o1"), ("hand-empty", "right_arm")}
+                        | {("holding", "right_arm", "o1")})
+    place_o1 = next((x, t) for x, t in problem.successors(held_o1) if x.name == "place" and x.args[2] == "goal_region")
+    assert st.prune([place_o1[0]], place_o1[1])

@@ -13,7 +13,10 @@ and that a block with something on it is cleared first.
 Two prunings follow from it (``Stacking.prune``), for goals onto slots and movable objects only (goals onto
 surfaces have ``relevance.without_detours``): an object in place is never picked up again, and an object
 whose goal support is ready (clear and in place) is put nowhere else. Each removes only plans that a
-shorter one with the same ordering of the other objects dominates.
+shorter one with the same ordering of the other objects dominates. A third orders the clearing of a goal
+region: nothing is set down on it while something without a goal stands there, and nothing without a goal
+is set down on it (an object set down beside the clutter would have to fit between it, which the search
+cannot tell; obstacles_tower_pr2's region holds its two obstacles and no more).
 """
 
 from __future__ import annotations
@@ -102,10 +105,13 @@ class Stacking:
         if a.name not in ("pick", *_PUT_DOWN) or len(a.args) < 3:
             return False
         o, s = a.args[1], a.args[2]
+        on = supports(state)
+        cluttered = any(x not in self.goal_on and t == s for x, t in on.items())
+        if a.name in _PUT_DOWN and s in self.claimed and (o not in self.goal_on or cluttered):
+            return True  # nothing onto a goal region until it is cleared
         goal = self.goal_on.get(o)
         if goal is None or self.types.get(goal) not in ONE_OBJECT:
             return False
-        on = supports(state)
         placed = self.in_place(on)
         if a.name == "pick":  # it was in place before: the pick changed nothing below it
             return s == goal and (s not in self.movable or placed.get(s, False))
