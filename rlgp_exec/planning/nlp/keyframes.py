@@ -14,7 +14,8 @@ sphere can be (a 5 cm cube: 25 mm, the PR2's sphere and margin 50 mm): against t
 that close, the fingers' own geometry stands for the tool sphere (``_hand_fixtures``, ``_hand_objects``;
 ``pinned_conflict`` alike). An object set down at an earlier keyframe is grasped again where that
 keyframe put it (its pose variable), and an object set down keeps clear of the objects standing beside
-its target (``_standing_beside``: it would land on or in them).
+its target (``_standing_beside``: it would land on or in them); one set down on a fixture's top at large
+keeps off the regions marked on it.
 
 Drawers (``nlp.drawer_factors``): ``take_knob`` puts the hand on the knob where the drawer is now;
 ``open_drawer``/``close_drawer`` are the articulated constraint (the hand, holding the knob, moves with
@@ -65,7 +66,7 @@ from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
+from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box, region_box
 
 __all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
 
@@ -84,6 +85,7 @@ HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
+BESIDE_GAP = 0.01  # [m] between a set-down object's footprint circle and a standing object's box
 REACH_SLACK = 0.05  # [m] boxes this much beyond what the fingers can reach from an action's site keep their rows too
 FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) the fingers may reach sideways
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
@@ -620,10 +622,23 @@ def _build(
             for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
                 gap = DROP_GAP if a.name == "drop" else PLACE_GAP
                 rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
+            if a.name in SETS_DOWN and a.target not in objs and all(r.name != a.target for r in scene.regions):
+                # set down on a fixture's top at large: off the regions marked on it (goals' places, pegs)
+                for r in scene.regions:
+                    if r.on == a.target:
+                        rb = region_box(scene, r)
+                        Tinv = np.linalg.inv(rb.T)
+                        centre = ca.vertcat(T_obj[0, 3], T_obj[1, 3], float(rb.T[2, 3]))
+                        local = ca.DM(Tinv[:3, :3]) @ centre + ca.DM(Tinv[:3, 3])
+                        rows.add(box_sdf(local, np.asarray(rb.size) / 2), r_o + BESIDE_GAP, ca.inf)
             if a.name in SETS_DOWN and tool_point is not None:  # and from the objects standing on the target
                 for b in _standing_beside(still_bx, tool_point, o.size, site, r_site + r_o, a.target):
-                    r_b = float(np.hypot(b.size[0], b.size[1])) / 2
-                    rows.add(ca.sumsqr(T_obj[:2, 3] - b.T[:2, 3]), (r_o + r_b + PLACE_GAP) ** 2, ca.inf)
+                    # the object's footprint circle off the standing one's box (its own faces: a circle
+                    # round both kept two 5 cm cubes 9 cm apart, more than a cleared goal region had)
+                    Tinv = np.linalg.inv(b.T)
+                    centre = ca.vertcat(T_obj[0, 3], T_obj[1, 3], float(b.T[2, 3]))
+                    local = ca.DM(Tinv[:3, :3]) @ centre + ca.DM(Tinv[:3, 3])
+                    rows.add(box_sdf(local, np.asarray(b.size) / 2), r_o + BESIDE_GAP, ca.inf)
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             if a.name in SETS_DOWN:  # a dropped object falls: where it lands is not this expression
                 placed[a.obj] = (T_obj, site, r_site)
