@@ -41,7 +41,9 @@ __all__ = [
     "ScenePoses",
     "SimMocap",
     "ZenohMocap",
+    "carried_along",
     "drawer_openings",
+    "stacks",
     "update_scene",
 ]
 
@@ -171,11 +173,13 @@ def update_scene(
     T_tool_obj: FloatArray | None = None,
 ) -> Scene:
     """``scene`` with the robot's base and manipulator joints from ``state``, the objects at ``poses``
-    (upright, resting on the surface under them; a drawer's floor where ``openings`` [m] has it) and its
+    (upright, resting on the surface under them, another object's top included; a drawer's floor where
+    ``openings`` [m] has it; an object not sensed where what it rests on moved it, ``carried_along``) and its
     start state (``Scene.start``): the drawers out by more than DRAWER_CLOSED_M, and the object ``held``
     in the hand, rigidly at T_tool_obj: from its sensed pose and the measured arm when it is sensed,
     else ``T_tool_obj`` (the grasp as executed). Raises SceneError naming an object that is not resting
     on anything (it fell), or a held object whose grasp is unknown."""
+    poses = {**carried_along(scene, poses, held), **poses}
     objects = []
     for o in scene.objects:
         T = poses.get(o.name)
@@ -223,6 +227,39 @@ def update_scene(
         s = s.with_object_poses({held: (x, y, z, yaw)})
         start = StartState.holding(held, T_tool_obj, openings=out)
     return find_support(replace(s, start=start), fail, openings)
+
+
+def stacks(scene: Scene) -> dict[str, list[str]]:
+    """What rests on each object, directly or on top of others (lowest first): object -> the objects above
+    it, from the ``support`` each object was found resting on (``scene.validate.find_support``)."""
+    names = {o.name for o in scene.objects}
+    support = {o.name: o.support for o in scene.objects if o.support in names}
+    above: dict[str, list[tuple[int, str]]] = {}
+    for o in scene.objects:
+        x, depth = o.name, 0
+        while x in support and depth < len(support):  # a support cycle cannot rest: cut at its length
+            x, depth = support[x], depth + 1
+            above.setdefault(x, []).append((depth, o.name))
+    return {b: [n for _, n in sorted(on)] for b, on in above.items()}
+
+
+def carried_along(scene: Scene, poses: dict[str, FloatArray], held: str | None = None) -> dict[str, FloatArray]:
+    """T_world_object (4, 4) of the objects ``poses`` lacks (not sensed: a tag hidden, a file's assumption)
+    that rest, directly or on others, on an object ``poses`` has: moved rigidly with the nearest one below
+    them that was sensed, from where ``scene`` has them (a block carried or pushed with the one under it; a
+    block on one the plan set down). The object in the hand, and what rests on it, are left out."""
+    by_name = {o.name: o for o in scene.objects}
+    out: dict[str, FloatArray] = {}
+    for o in scene.objects:
+        if o.name in poses or o.name == held:
+            continue
+        x, seen = o.support, {o.name}
+        while x in by_name and x not in poses and x not in seen and x != held:
+            seen.add(x)
+            x = by_name[x].support
+        if x in by_name and x in poses and x != held:
+            out[o.name] = poses[x] @ np.linalg.inv(by_name[x].T) @ o.T
+    return out
 
 
 def _xyz_yaw(T: FloatArray) -> tuple[float, float, float, float]:

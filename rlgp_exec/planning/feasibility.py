@@ -17,13 +17,14 @@ import numpy as np
 
 from rlgp_exec.planning.nlp.keyframes import _target_surface
 from rlgp_exec.planning.symbolic.model import GroundProblem
-from rlgp_exec.reach.ik import ReachIK
+from rlgp_exec.reach.ik import ReachIK, arm_spheres
 from rlgp_exec.robot.config import load_robot_config
 from rlgp_exec.scene import Scene
 
 __all__ = ["goal_manipulator", "moved_objects", "physical_refusals", "unreachable_goal"]
 
 log = logging.getLogger(__name__)
+TOOL_ROOM = 0.001  # [m] above the tool sphere's radius, for the IK's tolerance
 
 
 def goal_manipulator(scene: Scene) -> str:
@@ -46,16 +47,20 @@ def unreachable_goal(geo, problem: GroundProblem) -> str | None:
     holding it), or None."""
     scene = geo.scene
     ik = ReachIK(geo.model, scene, geo.q0, clearance=0.0)  # no base margin: looser than any keyframe
+    # the IK keeps its tool sphere out of the fixtures, which the fingers round a flat object need not: the
+    # point it aims at is that sphere's radius above the surface at least (a 3 cm disc: 5 mm higher)
+    r_tool = max((r for f, r in arm_spheres(geo.model, ik.manip.name) if f == ik.tool), default=0.0)
     for atom in sorted(problem.goal - problem.init):
         if atom[0] not in ("on", "in"):
             continue
         o = scene.object(atom[1])
-        top = np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2])
+        lift = max(0.0, r_tool + TOOL_ROOM - o.size[2])
+        top = np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2 + lift])
         if not _reachable(ik, top, geo.rg.node_seeds(top, 5)):
             return f"infeasible: {o.name} cannot be reached where it is (no position IK reaches {top.round(3)} m)"
         if atom[0] == "on" and atom[2] not in problem_objects(scene):
             T, _, z = _target_surface(scene, atom[2])
-            above = np.array([T[0, 3], T[1, 3], z + o.size[2]])
+            above = np.array([T[0, 3], T[1, 3], z + o.size[2] + lift])
             if not _reachable(ik, above, geo.rg.node_seeds(above, 5)):
                 where = f"no position IK reaches {above.round(3)} m"
                 return f"infeasible: {atom[2]} cannot be reached to set {o.name} on it ({where})"

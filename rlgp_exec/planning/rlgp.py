@@ -7,7 +7,11 @@ object height up, for a place), plus a constant per action; a site the graph can
 ``UNREACHABLE`` (the sequence is pushed to the back, not dropped). The search is weighted A* with a
 heuristic in the same units (the actions still needed, each misplaced object's carry to its goal and its
 cheapest approach), over the problem without detours (``symbolic.relevance``), so it grows with the
-number of objects instead of their orderings. A candidate whose keyframes fail in a leading chunk
+number of objects instead of their orderings. Towers and Hanoi (``symbolic.stacking``): an object counts as
+misplaced until its whole chain of supports is in place (a block goes down before the one on it; one with
+something on it is cleared first), a tower block's goal site is where the finished tower has it, and the
+search never picks up an object in place again nor sets one down elsewhere while its goal support is ready.
+A candidate whose keyframes fail in a leading chunk
 (``nlp.keyframe_chunks``) forbids that prefix to the candidates after it. The baseline ("lgp", our
 stand-in for RHH-LGP) uses the planar distance between sites instead, from the same search.
 
@@ -43,6 +47,7 @@ from rlgp_exec.planning.symbolic.heuristics import goal_lower_bound
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 from rlgp_exec.planning.symbolic.relevance import without_detours
 from rlgp_exec.planning.symbolic.search import best_first
+from rlgp_exec.planning.symbolic.stacking import Stacking
 from rlgp_exec.planning.validate import goal_holds, validate_plan
 from rlgp_exec.reach import RGParams
 from rlgp_exec.robot.model import FloatArray
@@ -131,7 +136,9 @@ class RGCost:
     site, and for each one the cheapest approach to it (from the hand, or from another misplaced object's
     goal, where the hand is after putting that one down): a bound in the same units as the cost (blockers'
     and drawers' sites left out), so the search orders by metres instead of exploring every ordering with
-    the same count of actions. ``estimate`` is
+    the same count of actions. With stacking goals (``symbolic.stacking``) the objects not in place (a goal
+    that holds on a support not yet in place, what rests on one, what stands on a goal region) add their
+    two actions, carry and approach too, and a tower block's goal site is the finished tower's. ``estimate`` is
     ``geo.heuristic_cost`` for R-LGP; the distance-only baseline passes the straight-line distance."""
 
     def __init__(self, geo: SequenceGeometry, problem: GroundProblem, estimate=None) -> None:
@@ -145,6 +152,8 @@ class RGCost:
         self.goals = [(g, g[1], g[2]) for g in problem.goal if g[0] in ("on", "in")]
         self.kind = {s: ("drop" if g[0] == "in" else "stack" if s in movable else "place") for g, _, s in self.goals}
         self.arm = next((n for n, t in problem.objects if t == "manipulator"), "arm")
+        self.stacking = Stacking(problem, {r.name for r in self.scene.regions})
+        self._final = self._final_sites()
 
     def _cost(self, x1: FloatArray, x2: FloatArray) -> float:
         key = x1.tobytes() + x2.tobytes()
@@ -178,25 +187,67 @@ class RGCost:
         openings = context.openings
         if kind == "drop":
             openings = {**openings, s: self.geo.drawers[s].travel}
+        final = self._final.get(o)
+        if final is not None:  # a tower's block: where the tower will have it, not on its support's site now
+            return final
         return _site(self.geo, GroundAction(kind, (self.arm, o, s)), context.objects, openings, self.surfaces)
+
+    def _final_sites(self) -> dict[str, FloatArray]:
+        """The hand's site [m] at the put-down of each object whose goal stacks it onto another object, when
+        the goal's chain of supports ends on a region or fixture: that target's centre, the chain's heights
+        up (the top of the object there)."""
+        goal_on = self.stacking.goal_on
+        out: dict[str, FloatArray] = {}
+        for o, s in goal_on.items():
+            if s not in self.stacking.movable:
+                continue
+            chain, x = [o], s
+            while x in self.stacking.movable and x in goal_on and x not in chain:
+                chain.append(x)
+                x = goal_on[x]
+            if x in self.stacking.movable:  # the chain ends on an object without a goal, or loops
+                continue
+            T, _, z = self.surfaces.get(x) or self.surfaces.setdefault(x, _target_surface(self.scene, x))
+            height = sum(self.scene.object(m).size[2] for m in chain)
+            out[o] = np.array([T[0, 3], T[1, 3], z + height])
+        return out
 
     def remaining(self, state: SymbolicState, context: _Where) -> float:
         held = {a[2] for a in state if a[0] == "holding"}
         carry, loose = 0.0, []
         ends = [context.here]  # where the hand can come from to each pick: here, or another object's goal
+        unmet = set(held)
+        count = PER_ACTION * self.count(state)
+
+        def top_of(o: str) -> FloatArray:
+            return context.objects[o] + np.array([0.0, 0.0, self.scene.object(o).size[2] / 2])
+
         for g, o, s in self.goals:
             if g in state:
                 continue
+            unmet.add(o)
             goal_site = self._goal_site(o, s, context)
             if o in held:
                 carry += self._cost(context.here, goal_site)
             else:
-                top = context.objects[o] + np.array([0.0, 0.0, self.scene.object(o).size[2] / 2])
+                top = top_of(o)
                 carry += self._cost(top, goal_site)
                 loose.append((top, len(ends)))
             ends.append(goal_site)
+        # objects whose goal holds on a support not yet in place, and what rests on them: moved again
+        for o in self.stacking.unfinished(state, unmet):
+            count += 2 * PER_ACTION
+            top = top_of(o)
+            support = self.stacking.goal_on.get(o)
+            if support is None:  # cleared off to anywhere: its approach only
+                loose.append((top, -1))
+                continue
+            goal_site = self._goal_site(o, support, context)
+            carry += self._cost(top, goal_site)
+            loose.append((top, len(ends)))
+            ends.append(goal_site)
         approach = sum(min(self._cost(e, top) for k, e in enumerate(ends) if k != own) for top, own in loose)
-        return PER_ACTION * self.count(state) + carry + approach
+        return count + carry + approach
 
 
 def plan_scene(
@@ -251,7 +302,9 @@ def _candidates(
 ) -> Plan:
     """``plan_scene``'s loop over the symbolic search's candidates."""
     model = RGCost(geo, problem, None if planner == "rlgp" else _planar_distance)
-    search = best_first(without_detours(problem), max_expansions=max_expansions, weight=SEARCH_WEIGHT, model=model)
+    prune = model.stacking.prune if model.stacking.active else None
+    search = best_first(without_detours(problem), max_expansions=max_expansions, weight=SEARCH_WEIGHT, model=model,
+                        prune=prune)
     reasons: list[str] = []
 
     def failed(reason: str) -> Plan:

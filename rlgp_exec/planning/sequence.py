@@ -34,6 +34,7 @@ from rlgp_exec.planning.nlp.hand import (
     finger_spheres,
     inner_obstacles,
     mesh_finger_spheres,
+    mesh_finger_tips,
     other_arm_obstacles,
 )
 from rlgp_exec.planning.nlp.keyframe_chunks import JOINT_ACTIONS, ChunkedKeyframes
@@ -115,6 +116,7 @@ class SequenceGeometry:
         self.hand = finger_spheres(self.checker.robot, self.model, self.q0)
         self.mesh_hand = mesh_finger_spheres(self.checker.robot, self.model, self.q0)  # keyframes only
         self.palm_hand = palm_box_spheres(self.checker.robot, self.model, self.q0)  # picks' keyframes only
+        self.tip_points = mesh_finger_tips(self.checker.robot, self.model, self.q0)  # by a flat object's support
         self.self_spheres = arm_link_spheres(self.model)
         self.body = body_obstacles(self.checker.robot, self.model, self.q0)
         # level 3's self-clearance: the body and the other arms where q0 has them
@@ -382,6 +384,7 @@ class SequenceGeometry:
             mesh_hand=self.mesh_hand,
             palm_hand=self.palm_hand,
             inner=self.inner,
+            tip_points=self.tip_points,
         )
 
     def _lay_out(self, actions: list[Action], kf: KeyframeResult) -> tuple[list[Phase], list[_Guide]] | _NoLayout:

@@ -156,7 +156,7 @@ def grasp_point(T_obj: FloatArray, size: tuple[float, float, float], depth: floa
 
 def grasp_top(
     rs: RobotSymbols,
-    T_obj: FloatArray,
+    T_obj: FloatArray | ca.SX | ca.DM,
     size: tuple[float, float, float],
     rows: Rows,
     depth: float = GRASP_DEPTH,
@@ -166,15 +166,22 @@ def grasp_top(
     pointing down within ``max_tilt`` [rad] of vertical (a tilted hand reaches further across a
     table), the fingers closing horizontally across two opposite faces (along the object's x or y).
     Returns the tilt measure 1 + a_z (0 when vertical), for the objective to prefer upright hands."""
-    top = grasp_point(T_obj, size, depth)
-    for i in range(3):
-        rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
+    if isinstance(T_obj, ca.SX):  # an object where an earlier keyframe set it down (upright): an expression
+        top_sx = T_obj[:3, 3] + ca.DM([0.0, 0.0, size[2] / 2 - min(depth, size[2] / 2)])
+        for i in range(3):
+            rows.add(rs.tool_pos[i] - top_sx[i], 0.0, 0.0)
+    else:
+        top = grasp_point(np.asarray(T_obj, float), size, depth)
+        for i in range(3):
+            rows.add(rs.tool_pos[i] - float(top[i]), 0.0, 0.0)
     a = rs.tool_axis(rs.manip.approach)
     for g, lower, upper in approach_rows(a, max_tilt):
         rows.add(g, lower, upper)
     c = rs.tool_axis(rs.manip.closing)
     rows.add(c[2], *closing_bounds(max_tilt))
-    ox, oy = ca.DM(T_obj[:3, 0]), ca.DM(T_obj[:3, 1])
+    ox, oy = T_obj[:3, 0], T_obj[:3, 1]
+    if not isinstance(T_obj, ca.SX):
+        ox, oy = ca.DM(np.asarray(ox, float)), ca.DM(np.asarray(oy, float))
     rows.add(ca.dot(c, ox) * ca.dot(c, oy), 0.0, 0.0)
     return 1.0 + a[2]
 
@@ -212,7 +219,9 @@ def inside_rectangle(p_xy: ca.SX, T: FloatArray | ca.SX, half: tuple[float, floa
     rows.add(ly, -half[1], half[1])
 
 
-def grasp_top_round(rs: RobotSymbols, T_obj: FloatArray, size: tuple[float, float, float], rows: Rows, **kw) -> ca.SX:
+def grasp_top_round(
+    rs: RobotSymbols, T_obj: FloatArray | ca.SX | ca.DM, size: tuple[float, float, float], rows: Rows, **kw
+) -> ca.SX:
     """``grasp_top`` for a cylinder (axis up): the fingers may close across it from any side, so the
     hand's roll is free (the optimiser can turn the open fingers away from a wall). Returns 1 + a_z."""
     mine = Rows.empty()

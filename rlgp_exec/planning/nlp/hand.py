@@ -40,6 +40,7 @@ __all__ = [
     "inner_obstacles",
     "link_box_spheres",
     "mesh_finger_spheres",
+    "mesh_finger_tips",
     "other_arm_obstacles",
     "points_clear",
     "points_clear_moving",
@@ -51,6 +52,9 @@ __all__ = [
 SEGMENT_RADIUS = 0.06  # [m] spheres on a mesh arm's segments (the PR2's upper arm and forearm)
 SHOULDER_SETBACK = 0.02  # [m] a mesh body's box ends this far behind the arm's first joint
 MID_INSET = 0.09  # [m] a mesh body's chest box (``inner_obstacles``) ends this far inside each shoulder's axis
+TIP_TILT = 0.8  # [rad] the approach directions (beyond the grasps' largest lean) ``mesh_finger_tips`` keeps
+TIP_STEPS = 5  # per axis, over [-TIP_TILT, TIP_TILT]
+BOUND_YAWS = 12  # base headings over a quarter turn at which a link's bounding box is taken (``_link_bounds``)
 
 
 MAX_COVER_SPHERES = 64  # spheres at most in a box's cover (a thin box gets a coarser row, ``_box_cover``)
@@ -129,19 +133,14 @@ def _grid_cover(lo: FloatArray, hi: FloatArray, cell: float) -> list[tuple[Float
             for ijk in itertools.product(*(range(int(k)) for k in n))]
 
 
-def mesh_finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
-    """(centre in the tool frame (3,) [m], radius [m]) spheres on the fingertips' *mesh* collision shapes
-    (the links named ``*tip*``, else every finger link) at ``q`` (the hand open; ``finger_spheres``
-    covers box shapes): each mesh's vertices (its convex hull, what PyBullet collides) bounded by a box
-    in the mesh's principal axes, covered by a grid of cells about as long as the box is thin (the
-    PR2's tips: 6 spheres each, radius 1.8 cm, 7 mm proud of the tip's faces; none on the HSR's box
-    fingers). The keyframe NLP keeps them off the objects, for which PyBullet's keyframe check otherwise
-    rejects a solution (PR2 fingertips a centimetre into a neighbouring block: one restart each)."""
+def _tip_vertices(robot, model, q: FloatArray) -> list[FloatArray]:
+    """The vertices (tool frame (V, 3) [m]) of each fingertip mesh collision shape (the links named ``*tip*``,
+    else every finger link) at ``q``."""
     fingers = [n for n in model.manipulator().links if "finger" in n]
     links = [n for n in fingers if "tip" in n] or fingers
     robot.set_q(q)
     T_tool = model.fk(q, model.manipulator().tool_frame)
-    out: list[tuple[FloatArray, float]] = []
+    out = []
     for name in links:
         i = robot.link_index[name]
         st = p.getLinkState(robot.id, i, computeForwardKinematics=True, physicsClientId=robot.client)
@@ -152,15 +151,57 @@ def mesh_finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, f
             mesh = p.getMeshData(robot.id, i, collisionShapeIndex=k, flags=p.MESH_DATA_SIMULATION_MESH,
                                  physicsClientId=robot.client)
             v = np.asarray(mesh[1], float)  # in the link's inertial frame, the shape's offset and scale applied
-            if len(v) < 4:
-                continue
-            v_tool = (np.linalg.solve(T_tool, T_com @ np.c_[v, np.ones(len(v))].T)[:3]).T
-            centre = v_tool.mean(axis=0)
-            axes = np.linalg.svd(v_tool - centre, full_matrices=False)[2]  # rows: principal axes
-            local = (v_tool - centre) @ axes.T
-            lo, hi = local.min(axis=0), local.max(axis=0)
-            for c, r in _grid_cover(lo, hi, 1.1 * max(float(np.min(hi - lo)), 0.01)):
-                out.append((centre + axes.T @ c, r))
+            if len(v) >= 4:
+                out.append((np.linalg.solve(T_tool, T_com @ np.c_[v, np.ones(len(v))].T)[:3]).T)
+    return out
+
+
+def _tip_boxes(robot, model, q: FloatArray) -> list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]]:
+    """Each fingertip mesh's vertices (``_tip_vertices``) bounded by a box in the mesh's principal axes:
+    (centre (3,), axes (3, 3) rows, lower (3,), upper (3,)), in the tool frame [m]."""
+    out = []
+    for v_tool in _tip_vertices(robot, model, q):
+        centre = v_tool.mean(axis=0)
+        axes = np.linalg.svd(v_tool - centre, full_matrices=False)[2]  # rows: principal axes
+        local = (v_tool - centre) @ axes.T
+        out.append((centre, axes, local.min(axis=0), local.max(axis=0)))
+    return out
+
+
+def mesh_finger_spheres(robot, model, q: FloatArray) -> list[tuple[FloatArray, float]]:
+    """(centre in the tool frame (3,) [m], radius [m]) spheres on the fingertips' *mesh* collision shapes
+    (``_tip_boxes``) at ``q`` (the hand open; ``finger_spheres`` covers box shapes): each mesh's vertices
+    (its convex hull, what PyBullet collides) bounded by a box in the mesh's principal axes, covered by a
+    grid of cells about as long as the box is thin (the PR2's tips: 6 spheres each, radius 1.8 cm, 7 mm
+    proud of the tip's faces; none on the HSR's box fingers). The keyframe NLP keeps them off the objects,
+    for which PyBullet's keyframe check otherwise rejects a solution (PR2 fingertips a centimetre into a
+    neighbouring block: one restart each)."""
+    out: list[tuple[FloatArray, float]] = []
+    for centre, axes, lo, hi in _tip_boxes(robot, model, q):
+        for c, r in _grid_cover(lo, hi, 1.1 * max(float(np.min(hi - lo)), 0.01)):
+            out.append((centre + axes.T @ c, r))
+    return out
+
+
+def mesh_finger_tips(
+    robot, model, q: FloatArray, max_tilt: float = TIP_TILT, steps: int = TIP_STEPS,
+) -> list[tuple[FloatArray, float]]:
+    """The fingertips' mesh vertices that lead the hand (tool frame (3,) [m], radius 0): each mesh's furthest
+    vertex along the approach axis turned by up to ``max_tilt`` [rad] (a grid of ``steps`` per axis). Against
+    a flat surface below the hand, whose nearest point of a convex tip is such a vertex, they bound the tips
+    exactly, where ``mesh_finger_spheres`` reach 7 mm further (a 3 cm disc grasped at half its height: the
+    spheres 0.7 mm into the table, the PR2's tips 8 mm above it)."""
+    m = model.manipulator()
+    a = np.asarray(m.approach, float) / np.linalg.norm(m.approach)
+    side1 = np.cross(a, np.asarray(m.closing, float))
+    side1 /= np.linalg.norm(side1)
+    side2 = np.cross(a, side1)
+    tilts = np.linspace(-max_tilt, max_tilt, steps)
+    dirs = [np.cos(np.hypot(t1, t2)) * a + np.sin(t1) * side1 + np.sin(t2) * side2 for t1 in tilts for t2 in tilts]
+    out: list[tuple[FloatArray, float]] = []
+    for v in _tip_vertices(robot, model, q):
+        for i in sorted({int(np.argmax(v @ d)) for d in dirs}):
+            out.append((v[i].copy(), 0.0))
     return out
 
 
@@ -313,14 +354,26 @@ def upper_arm_spheres(spheres: Sequence[tuple[str, FloatArray, float]]) -> list[
     return [s for s in spheres if s[0] == spheres[0][0]] if spheres else []
 
 
-def _link_bounds(robot, model, q: FloatArray, link: str) -> tuple[FloatArray, FloatArray]:
-    """(lower (3,), upper (3,)) [m] in ``link``'s frame of a box holding its PyBullet bounding box at q."""
+def _link_bounds(robot, model, q: FloatArray, link: str, yaws: int = BOUND_YAWS) -> tuple[FloatArray, FloatArray]:
+    """(lower (3,), upper (3,)) [m] in ``link``'s frame of a box holding the link: PyBullet's world-aligned
+    bounding box, seen from the link's frame, holds the link at every base heading; at ``yaws`` headings
+    over a quarter turn the boxes' intersection still holds it and is near the link's own extent (one
+    heading alone: a link turned 45 degrees in the world gets a box twice its size, the PR2's raised left
+    shoulder 0.62 m across, which the right upper arm could not pass)."""
+    lo_all, hi_all = np.full(3, -np.inf), np.full(3, np.inf)
+    yaw0 = float(q[2])
+    for k in range(max(yaws, 1)):
+        qk = np.array(q, float)
+        qk[2] = yaw0 + 0.5 * np.pi * k / max(yaws, 1)
+        robot.set_q(qk)
+        lo, hi = (np.asarray(v, float)
+                  for v in p.getAABB(robot.id, robot.link_index[link], physicsClientId=robot.client))
+        T_link = model.fk(qk, link)
+        corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
+                            for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        lo_all, hi_all = np.maximum(lo_all, corners.min(axis=0)), np.minimum(hi_all, corners.max(axis=0))
     robot.set_q(q)
-    lo, hi = (np.asarray(v, float) for v in p.getAABB(robot.id, robot.link_index[link], physicsClientId=robot.client))
-    T_link = model.fk(q, link)
-    corners = np.array([np.linalg.solve(T_link, np.r_[x, y, z, 1.0])[:3] for x in (lo[0], hi[0])
-                        for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    return corners.min(axis=0), corners.max(axis=0)
+    return lo_all, hi_all
 
 
 def _bounds_box(name: str, lo: FloatArray, hi: FloatArray) -> Box:

@@ -9,6 +9,14 @@ keyframe keeps the arm spheres clear of the fixtures and of the objects still wh
 them, and the base clear of fixture footprints. The objective is the weighted squared distance
 between consecutive keyframes (from the start), a proxy for motion cost.
 
+A flat object's grasp or release puts the tool point nearer the surface under it than the arm's tool
+sphere can be (a 5 cm cube: 25 mm, the PR2's sphere and margin 50 mm): against the fixtures and objects
+that close, the fingers' own geometry stands for the tool sphere (``_hand_fixtures``, ``_hand_objects``;
+``pinned_conflict`` alike). An object set down at an earlier keyframe is grasped again where that
+keyframe put it (its pose variable), and an object set down keeps clear of the objects standing beside
+its target (``_standing_beside``: it would land on or in them); one set down on a fixture's top at large
+keeps off the regions marked on it.
+
 Drawers (``nlp.drawer_factors``): ``take_knob`` puts the hand on the knob where the drawer is now;
 ``open_drawer``/``close_drawer`` are the articulated constraint (the hand, holding the knob, moves with
 the drawer's prismatic joint by the change of opening; the knob is let go at the end); ``drop`` holds
@@ -38,6 +46,7 @@ from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
+    GRASP_DEPTH,
     RobotSymbols,
     Rows,
     approach_bounds,
@@ -51,13 +60,13 @@ from rlgp_exec.planning.nlp.factors import (
 )
 from rlgp_exec.planning.nlp.hand import points_clear, points_clear_moving, self_rows_function, upper_arm_spheres
 from rlgp_exec.planning.nlp.keyframe_seeds import attempt_guess
-from rlgp_exec.planning.nlp.pick_fingers import finger_set, pick_room
+from rlgp_exec.planning.nlp.pick_fingers import finger_set, pick_room, too_close
 from rlgp_exec.planning.nlp.poses import object_poses_after
 from rlgp_exec.reach.checker import CLEARANCE
 from rlgp_exec.reach.ik import ReachIK, arm_spheres, box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
-from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box
+from rlgp_exec.scene.geometry import PANEL, Box, fixture_boxes, object_box, region_box
 
 __all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyframes"]
 
@@ -76,6 +85,7 @@ HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
 BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
+BESIDE_GAP = 0.01  # [m] between a set-down object's footprint circle and a standing object's box
 REACH_SLACK = 0.05  # [m] boxes this much beyond what the fingers can reach from an action's site keep their rows too
 FINGER_REACH = 0.15  # [m] past an action's site (and the object's own extent) the fingers may reach sideways
 DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a few cm off the release point
@@ -141,6 +151,7 @@ def pinned_conflict(
     model: RobotModel, scene: Scene, actions: list[Action], manipulator: str | None = None,
     hand: Sequence[tuple[FloatArray, float]] = (), mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     max_tilt: float = 0.0, palm_hand: Sequence[tuple[FloatArray, float]] = (),
+    tip_points: Sequence[tuple[FloatArray, float]] = (),
 ) -> str | None:
     """The reason no keyframe NLP of ``actions`` can be feasible, found without building it: a pick pins
     the tool point (its grasp row: ``grasp_point``, GRASP_DEPTH below the object's top centre), so the tool sphere's
@@ -151,7 +162,10 @@ def pinned_conflict(
     A fixture row below its bound by more than FEAS_TOL,
     or every closing short of room by more, fails every start (pick_place_pr2 seed 3: a block 4 cm from
     another, 16 starts of ~1 s at both tilts, each ending 1.99 mm short). With ``max_tilt`` > 0 the leaning
-    closings are a grid (``pick_fingers.TILT_STEPS``). None if no pick is pinned into an obstacle."""
+    closings are a grid (``pick_fingers.TILT_STEPS``). The fixtures the tool sphere cannot clear at the grasp
+    point (the surface under a flat object) are the fingers' instead: ``tip_points`` (the fingertips' leading
+    vertices, ``nlp.hand.mesh_finger_tips``) with CLEARANCE when given. None if no pick is pinned into an
+    obstacle."""
     manip = model.manipulator(manipulator)
     r_tool = [r for f, r in arm_spheres(model, manip.name) if f == manip.tool_frame]
     fingers = [f for f in (finger_set(hand, HAND_MARGIN), finger_set(mesh_hand, CLEARANCE)) if len(f.radii)]
@@ -163,11 +177,16 @@ def pinned_conflict(
     objs = {o.name: o for o in scene.objects}
     moved = {scene.start.held} if scene.start.held is not None else set()
     for a in actions:
-        if a.name == "pick" and a.obj in objs:
+        # an object moved earlier in the sequence is picked where that keyframe put it: not pinned yet
+        if a.name == "pick" and a.obj in objs and a.obj not in moved:
             o = objs[a.obj]
             top = grasp_point(o.T, o.size)
             still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
-            tool_rows = [(b, ARM_MARGIN) for b in fixture_bx] + ([] if fingers else [(b, HAND_MARGIN) for b in still])
+            # the fixtures the pinned tool sphere cannot clear (the surface under a flat object) are the
+            # fingers' to clear, as the NLP's rows have it (``_hand_fixtures``)
+            near = too_close(top, fixture_bx, r_tool[0] + ARM_MARGIN - FEAS_TOL) if r_tool and fingers else []
+            tool_rows = [(b, ARM_MARGIN) for b in fixture_bx if all(b is not n for n in near)]
+            tool_rows += [] if fingers else [(b, HAND_MARGIN) for b in still]
             for b, margin in tool_rows if r_tool else []:
                 local = np.linalg.solve(b.T, np.r_[top, 1.0])[:3]
                 d = float(box_sdf(ca.DM(local), np.asarray(b.size) / 2))
@@ -178,14 +197,92 @@ def pinned_conflict(
                 round_sides = o.shape == "cylinder"
                 room, blockers = pick_room(o.T, top, np.asarray(manip.approach, float),
                                            np.asarray(manip.closing, float), fingers, still,
-                                           0.0 if round_sides else max_tilt, FEAS_TOL, round_sides)
+                                           0.0 if round_sides else max_tilt, FEAS_TOL, round_sides, near,
+                                           [finger_set(tip_points, CLEARANCE)] if tip_points else [])
                 if room is None:
                     sides = "from any side" if round_sides else "across either pair of faces"
                     return (f"{a}: the open fingers hit {' and '.join(blockers)} at every closing of its grasp "
                             f"({sides}, tilt <= {max_tilt:.1f} rad)")
-        if a.name in ("pick", "place", "drop"):
+        if a.name in MOVES_OBJECT:
             moved.add(a.obj)
     return None
+
+
+def _tool_point(
+    scene: Scene, a: Action, objs: dict, poses: dict[str, FloatArray], placed: dict, tops: dict[str, FloatArray],
+) -> FloatArray | None:
+    """Where action ``a`` puts the tool point (world (3,) [m]), GRASP_DEPTH below the top of the object it
+    picks or sets down: exactly for a pick (the object where it stands, or as an earlier keyframe targeted
+    it), over the target's centre for a place or stack; None for the other actions."""
+    if a.name not in ("pick", "place", "stack"):
+        return None
+    o = objs[a.obj]
+    down = np.array([0.0, 0.0, min(GRASP_DEPTH, o.size[2] / 2)])
+    if a.name == "pick":
+        top = tops[a.obj] if a.obj in placed else poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2])
+        return top - down
+    if a.target is None:
+        return None
+    if a.target in objs:  # onto another object's top, where it stands or was set down
+        b = objs[a.target]
+        top_b = tops.get(a.target, poses[a.target][:3, 3] + np.array([0.0, 0.0, b.size[2] / 2]))
+        return top_b + np.array([0.0, 0.0, PLACE_LIFT + o.size[2]]) - down
+    T, _, z = _target_surface(scene, a.target)
+    return np.array([T[0, 3], T[1, 3], z + PLACE_LIFT + o.size[2]]) - down
+
+
+def _standing_beside(
+    still_bx: list[Box], tool_point: FloatArray, size: tuple[float, float, float], site: FloatArray, reach: float,
+    support: str,
+) -> list[Box]:
+    """The standing objects' boxes a put-down object could land on or in (not its ``support``): those whose
+    height overlaps the object's, set down with its tool point at ``tool_point`` (3,) (world [m]), and whose
+    centre is within ``reach`` [m] plus their own half diagonal of the target's ``site`` (x y (2,))."""
+    top = float(tool_point[2]) + min(GRASP_DEPTH, size[2] / 2)
+    bottom = top - size[2]
+    out = []
+    for b in still_bx:
+        if b.name == support:
+            continue
+        half_z = float(np.abs(b.T[2, :3]) @ np.asarray(b.size)) / 2
+        if b.T[2, 3] + half_z <= bottom + PLACE_LIFT or b.T[2, 3] - half_z >= top:
+            continue
+        if np.linalg.norm(b.T[:2, 3] - site) < reach + float(np.hypot(b.size[0], b.size[1])) / 2:
+            out.append(b)
+    return out
+
+
+def _tool_need(rs: RobotSymbols, margin: float) -> float | None:
+    """The clearance [m] the tool sphere keeps (its radius + ``margin``), None if the arm has no tool sphere."""
+    r_tool = [r for f, r in rs.spheres if f == rs.manip.tool_frame]
+    return r_tool[0] + margin if r_tool else None
+
+
+def _hand_fixtures(
+    rs: RobotSymbols, fixture_bx: list[Box], tool_point: FloatArray, fingers: Sequence[tuple[FloatArray, float]],
+    rows: Rows,
+) -> list[Box]:
+    """Rows against the fixtures the tool sphere cannot clear at a grasp or release whose tool point is
+    ``tool_point`` (3,) (world [m]; the surface under a flat object): the fingers' spheres (tool frame,
+    CLEARANCE: the keyframe check's) and the arm's other spheres (ARM_MARGIN) instead of the tool sphere.
+    Returns the other fixture boxes, whose rows keep the tool sphere."""
+    need = _tool_need(rs, ARM_MARGIN)
+    near = too_close(tool_point, fixture_bx, need) if need is not None and fingers else []
+    if near:
+        box_clear(rs, near, rows, margin=ARM_MARGIN, skip=(rs.manip.tool_frame,))
+        points_clear(rs.T_tool, list(fingers), near, rows, margin=CLEARANCE)
+    return [b for b in fixture_bx if all(b is not n for n in near)]
+
+
+def _hand_objects(rs: RobotSymbols, still_bx: list[Box], tool_point: FloatArray, rows: Rows) -> list[Box]:
+    """``_hand_fixtures`` for the standing objects at a release (a block stacked onto a flat one): the arm's
+    other spheres keep ARM_MARGIN from those the tool sphere cannot clear, the finger rows near the site
+    (``_build``) stand for the tool sphere. Returns the other objects' boxes."""
+    need = _tool_need(rs, ARM_MARGIN)
+    near = too_close(tool_point, still_bx, need) if need is not None else []
+    if near:
+        box_clear(rs, near, rows, margin=ARM_MARGIN, skip=(rs.manip.tool_frame,))
+    return [b for b in still_bx if all(b is not n for n in near)]
 
 
 def _site_disc(
@@ -346,6 +443,7 @@ def _build(
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     inner: Sequence[tuple[str, Box]] = (),
     palm_hand: Sequence[tuple[FloatArray, float]] = (),
+    tip_points: Sequence[tuple[FloatArray, float]] = (),
 ) -> _Problem:
     """The keyframe NLP of ``actions`` (``solve_keyframes`` documents the arguments), built once."""
     n, K = len(ik.idx), len(actions)
@@ -382,6 +480,7 @@ def _build(
     row_keyframe: list[int] = []
     couples: list[tuple[int, ...]] = []
     picked_at: int | None = None  # the keyframe of the grasp held now (None: the start's, or none)
+    regrasp = False  # the grasp held now is of an object an earlier keyframe set down (reads its pose variable)
     aux: list[tuple[ca.SX, ca.SX, tuple[int, ...]]] = []  # pose variables: (P, its expression, keyframes read)
     for k, a in enumerate(actions):
         budget.check()  # a keyframe's rows grow with the objects and fixtures round it
@@ -403,10 +502,16 @@ def _build(
         drawer_bx = [b for c, v in drawers.items() if not (at_knob and c == a.obj) for b in v.boxes(openings[c])]
         n0 = len(rows.g)
         still_bx = [replace(b, T=poses[b.name]) for b in still]
-        box_clear(rs, fixture_bx + drawer_bx, rows, margin=ARM_MARGIN)
         own_hand = a.name == "pick" and bool(hand or mesh_hand)
+        tool_point = _tool_point(scene, a, objs, poses, placed, tops) if hand or mesh_hand else None
+        tool_fixtures, tool_objects = fixture_bx, still_bx
+        if tool_point is not None:  # the fingers, not the tool sphere, by the surface under a flat object
+            tool_fixtures = _hand_fixtures(rs, fixture_bx, tool_point, list(tip_points) or [*hand, *mesh_hand], rows)
+            if not own_hand:  # a release onto a flat object: the fingers' rows below keep off it
+                tool_objects = _hand_objects(rs, still_bx, tool_point, rows)
+        box_clear(rs, tool_fixtures + drawer_bx, rows, margin=ARM_MARGIN)
         skip = ((rs.manip.tool_frame,) + ((rs.manip.palm_frame,) if palm_hand else ())) if own_hand else ()
-        _objects_clear(rs, still_bx, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN, skip)
+        _objects_clear(rs, tool_objects, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN, skip)
         rows.add_all(self_rows.rows(rs), self_rows.lower, ca.inf)
         rows.add_all(inner_rows.rows(rs), inner_rows.lower, ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
@@ -458,25 +563,34 @@ def _build(
             if held is not None or knob is not None:
                 raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
             o = objs[a.obj]
+            # an object an earlier keyframe set down is grasped where that keyframe put it (its pose variable)
+            T_at: ca.SX | ca.DM = placed[a.obj][0] if a.obj in placed else ca.DM(poses[a.obj])
+            regrasp = a.obj in placed
+            if regrasp:
+                couples[k] = (*couples[k], *placed_by[a.obj])
             if o.shape == "cylinder":  # a leaning hand touches a round side at two points only: the
                 # object pivots about them as the fingers close (seen in physics: a cup tipped ~30 deg)
-                tilts.append(grasp_top_round(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
+                tilts.append(grasp_top_round(rs, T_at, o.size, rows, max_tilt=0.0))
             else:  # flat faces: the pads stay vertical (closing axis horizontal), the box stays upright
                 tilt_rows.append(len(rows.g) + 3)  # grasp_top's approach rows: their bounds set per solve
-                tilts.append(grasp_top(rs, poses[a.obj], o.size, rows, max_tilt=0.0))
-            grasp = _rigid_inv(rs.T_tool) @ ca.DM(poses[a.obj])
+                tilts.append(grasp_top(rs, T_at, o.size, rows, max_tilt=0.0))
+            grasp = _rigid_inv(rs.T_tool) @ T_at
             held, picked_at = a.obj, k
             placed.pop(a.obj, None)
-            targets.append(poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2]))
+            top_o = poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2])
+            targets.append(tops.pop(a.obj) if a.obj in tops else top_o)
         elif a.name in RELEASES:
             if held != a.obj or grasp is None or a.target is None:
                 raise RlgpError(f"keyframe NLP: {a} without holding {a.obj} (holding {held})")
             o = objs[a.obj]
-            if picked_at is not None:
-                couples[k] = (*couples[k], picked_at)
+            if picked_at is not None:  # and what that pick read (the pose it was set down at before)
+                couples[k] = tuple(dict.fromkeys((*couples[k], picked_at, *couples[picked_at])))
             T_hand_obj = rs.T_tool @ grasp  # where the object is released: a variable, read by this place's
             P, T_obj = _pose_variable(f"T_{a.obj}_{k}", T_hand_obj, rows)  # rows and by later keyframes'
-            aux.append((P, ca.vec(T_hand_obj[:3, :4]), (k, *couples[k])))
+            expr = ca.vec(T_hand_obj[:3, :4])
+            for P_prev, e_prev, _ in aux if regrasp else ():  # a grasp where a keyframe set it down reads
+                expr = ca.substitute(expr, P_prev, e_prev)  # that pose variable: its expression instead
+            aux.append((P, expr, (k, *couples[k])))
             labels += [f"{a} pose"] * (len(rows.g) - n0)
             n0 = len(rows.g)
             if a.name == "stack" and a.target in objs:  # on the support's top face, wherever it stands now
@@ -508,6 +622,23 @@ def _build(
             for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
                 gap = DROP_GAP if a.name == "drop" else PLACE_GAP
                 rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
+            if a.name in SETS_DOWN and a.target not in objs and all(r.name != a.target for r in scene.regions):
+                # set down on a fixture's top at large: off the regions marked on it (goals' places, pegs)
+                for r in scene.regions:
+                    if r.on == a.target:
+                        rb = region_box(scene, r)
+                        Tinv = np.linalg.inv(rb.T)
+                        centre = ca.vertcat(T_obj[0, 3], T_obj[1, 3], float(rb.T[2, 3]))
+                        local = ca.DM(Tinv[:3, :3]) @ centre + ca.DM(Tinv[:3, 3])
+                        rows.add(box_sdf(local, np.asarray(rb.size) / 2), r_o + BESIDE_GAP, ca.inf)
+            if a.name in SETS_DOWN and tool_point is not None:  # and from the objects standing on the target
+                for b in _standing_beside(still_bx, tool_point, o.size, site, r_site + r_o, a.target):
+                    # the object's footprint circle off the standing one's box (its own faces: a circle
+                    # round both kept two 5 cm cubes 9 cm apart, more than a cleared goal region had)
+                    Tinv = np.linalg.inv(b.T)
+                    centre = ca.vertcat(T_obj[0, 3], T_obj[1, 3], float(b.T[2, 3]))
+                    local = ca.DM(Tinv[:3, :3]) @ centre + ca.DM(Tinv[:3, 3])
+                    rows.add(box_sdf(local, np.asarray(b.size) / 2), r_o + BESIDE_GAP, ca.inf)
             set_down.setdefault(a.target, []).append((a.obj, T_obj[:2, 3], r_o))
             if a.name in SETS_DOWN:  # a dropped object falls: where it lands is not this expression
                 placed[a.obj] = (T_obj, site, r_site)
@@ -605,6 +736,7 @@ def solve_keyframes(
     mesh_hand: Sequence[tuple[FloatArray, float]] = (),
     inner: Sequence[tuple[str, Box]] = (),
     palm_hand: Sequence[tuple[FloatArray, float]] = (),
+    tip_points: Sequence[tuple[FloatArray, float]] = (),
 ) -> KeyframeResult:
     """Solve the keyframe NLP (several initial guesses); ``in_collision(q, openings, action, objects)``
     (the full PyBullet check, self-collisions and mesh fingers included, which the NLP's shapes do not
@@ -617,7 +749,9 @@ def solve_keyframes(
     (``nlp.hand.body_obstacles``), the upper arm's (``nlp.hand.upper_arm_spheres``) off the ``inner`` ones too
     (``nlp.hand.inner_obstacles``: the chest and the other arms' shoulders). ``palm_hand``: spheres on the palm's
     box shapes (``nlp.pick_fingers.palm_box_spheres``), which at a pick stand for the palm's arm sphere
-    against the standing objects, as the fingers' spheres stand for the tool's.
+    against the standing objects, as the fingers' spheres stand for the tool's. ``tip_points``: the
+    fingertips' leading vertices (``nlp.hand.mesh_finger_tips``), which stand for the tool sphere against the
+    surface under a flat object picked or set down (the finger spheres otherwise).
     ``lift_room`` [m]: at a pick, place or drop, an arm whose first joint is a lift keeps this much of
     its travel above it (the vertical leave is then one lift motion).
     ``seeds(x)``: initial guesses z (n,) for a keyframe whose hand goes to x (the reachability graph's
@@ -640,7 +774,7 @@ def solve_keyframes(
             raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
         if a.name == "drop" and a.target not in drawers:
             raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
-    conflict = pinned_conflict(model, scene, actions, manipulator, hand, mesh_hand, max_tilt, palm_hand)
+    conflict = pinned_conflict(model, scene, actions, manipulator, hand, mesh_hand, max_tilt, palm_hand, tip_points)
     if conflict is not None:
         log.info("keyframes: infeasible before any start: %s", conflict)
         return KeyframeResult(False, np.zeros((0, model.nq)), (), (), math.inf, math.inf,
@@ -651,7 +785,7 @@ def solve_keyframes(
     if prob is None:
         prob = _build(
             model, scene, q_start, actions, manipulator, ik, hand, self_spheres, body, lift_room, objs, drawers,
-            mesh_hand, inner, palm_hand,
+            mesh_hand, inner, palm_hand, tip_points,
         )
         if cache is not None:  # one sequence at a time: its tilts share the NLP
             cache.clear()
@@ -677,6 +811,10 @@ def solve_keyframes(
         g = np.asarray(r["g"]).reshape(-1)
         over = np.maximum(lbg - g, g - ubg)
         v = float(np.max(np.r_[over, 0.0]))
+        if v > FEAS_TOL and log.isEnabledFor(logging.DEBUG):
+            worst5 = np.argsort(-over)[:5]
+            log.debug("keyframes: worst rows %s",
+                      [(labels[i], round(float(over[i]), 4)) for i in worst5 if over[i] > 0])
         return r, v, (labels[int(np.argmax(over))] if g.size else "")
 
     best = None

@@ -23,7 +23,10 @@ from rlgp_exec.planning.nlp.hand import link_box_spheres
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene.geometry import Box
 
-__all__ = ["FingerSet", "PickRoom", "box_distance", "finger_set", "palm_box_spheres", "pick_room", "tool_rotation"]
+__all__ = [
+    "FingerSet", "PickRoom", "box_distance", "finger_set", "palm_box_spheres", "pick_room", "too_close",
+    "tool_rotation",
+]
 
 TILT_STEPS = 5  # leaning approaches tried per axis (symmetric about vertical) when max_tilt > 0
 ROUND_YAWS = 24  # closing directions tried round a cylinder, whose fingers may close from any side
@@ -64,6 +67,15 @@ def box_distance(points_world: FloatArray, box: Box) -> FloatArray:
     outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
     inside = np.minimum(q.max(axis=1), 0.0)
     return outside + inside
+
+
+def too_close(tool_point_world: FloatArray, boxes: Sequence[Box], need_m: float) -> list[Box]:
+    """The ``boxes`` nearer than ``need_m`` [m] to a pick's pinned tool point (3,) (world): where the tool
+    sphere cannot stand for the hand (the surface a flat object stands on, 25 mm below a 5 cm cube's grasp
+    point against the PR2's 50 mm tool sphere and margin), so the fingers' own spheres must (``pick_room``
+    and the keyframe NLP's finger rows)."""
+    point = np.asarray(tool_point_world, float).reshape(1, 3)
+    return [b for b in boxes if float(box_distance(point, b)[0]) < need_m]
 
 
 def tool_rotation(approach_tool: FloatArray, closing_tool: FloatArray, a_world: FloatArray,
@@ -114,7 +126,7 @@ def _closings(T_obj: FloatArray, max_tilt: float, round_sides: bool) -> list[tup
 def pick_room(
     T_obj: FloatArray, tool_point_world: FloatArray, approach_tool: FloatArray, closing_tool: FloatArray,
     fingers: Sequence[FingerSet], boxes: Sequence[Box], max_tilt: float = 0.0, tol: float = 0.0,
-    round_sides: bool = False,
+    round_sides: bool = False, floor: Sequence[Box] = (), floor_fingers: Sequence[FingerSet] = (),
 ) -> tuple[PickRoom | None, tuple[str, ...]]:
     """(the closing with most room, None if none has any; for each closing tried with no room, the box
     that shuts it out, most often first, without repeats) at the grasp of an object at ``T_obj`` (4, 4)
@@ -122,15 +134,18 @@ def pick_room(
     axes in its tool frame; ``fingers``: the finger spheres and their margins; ``boxes``: the standing
     objects (not the one being grasped) and anything else the fingers must keep off; a closing has room
     when no sphere is short of its clearance by more than ``tol`` [m]. ``round_sides``: a cylinder's grasp,
-    closing from any side (on a grid of ROUND_YAWS)."""
+    closing from any side (on a grid of ROUND_YAWS). ``floor``: boxes (the surface under the object) checked
+    with ``floor_fingers`` instead (``fingers`` if empty)."""
     sets = [f for f in fingers if len(f.radii)]
+    floor_sets = [f for f in floor_fingers if len(f.radii)] or sets
+    pairs = [(b, sets) for b in boxes] + [(b, floor_sets) for b in floor]
     best: PickRoom | None = None
     blockers: dict[str, int] = {}
     for a_w, c_w in _closings(T_obj, max_tilt, round_sides):
         R = tool_rotation(approach_tool, closing_tool, a_w, c_w)
         slack, nearest = np.inf, ""
-        for b in boxes:
-            for f in sets:
+        for b, with_sets in pairs:
+            for f in with_sets:
                 d = box_distance(f.centres_tool @ R.T + tool_point_world, b) - f.radii - f.margin
                 m = float(d.min())
                 if m < slack:

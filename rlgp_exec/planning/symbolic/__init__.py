@@ -6,6 +6,8 @@
 * ``search`` / ``heuristics`` — ``best_first`` with a pluggable cost (or a path-dependent ``PathCost``),
   yielding candidate plans;
 * ``relevance`` — ``without_detours``: operators that only take an object off its goal surface, removed;
+* ``stacking`` — towers and Hanoi: which objects are in place for good, the count of those that are not,
+  and the prunings that follow (R-LGP's search);
 * ``downward`` — Fast Downward in a subprocess, failures as ``FDStatus``;
 * ``reformulate`` — GNPP: forbid learnt infeasible partial-state sequences (both planners).
 """
