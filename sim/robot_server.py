@@ -52,6 +52,7 @@ from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
 from rlgp_exec.sim.logs import configure_logging
+from rlgp_exec.sim.realtime import RealTimeLoop
 
 __all__ = ["RealTimeLoop", "ZenohRobotServer", "build_sim", "main"]
 
@@ -64,49 +65,6 @@ COMMAND_DEADLINE_S = 0.5  # [s] commanded, and no command or keepalive for this 
 
 def _ns(namespace: str, key: str) -> str:
     return f"{namespace}/{key}" if namespace else key
-
-
-class RealTimeLoop:
-    """Call ``tick()`` every ``period`` s on absolute deadlines (no drift); records the period errors."""
-
-    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop") -> None:
-        self.period = period
-        self.tick = tick
-        self.name = name
-        self.errors_ms: list[float] = []  # |actual period - nominal| per cycle, last 10 000
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self.run, name=self.name, daemon=True)
-        self._thread.start()
-
-    def run(self) -> None:
-        nxt = time.perf_counter()
-        last = nxt
-        while not self._stop.is_set():
-            try:
-                self.tick()
-            except Exception:  # a bug in one tick must not kill the robot's loop silently
-                log.exception("%s: tick failed", self.name)
-            nxt += self.period
-            now = time.perf_counter()
-            if now - nxt > 5 * self.period:  # fell far behind (machine stalled): resynchronise
-                nxt = now
-            self._stop.wait(max(0.0, nxt - now))
-            t = time.perf_counter()
-            self.errors_ms.append(abs((t - last) - self.period) * 1e3)
-            if len(self.errors_ms) > 10_000:
-                del self.errors_ms[:5_000]
-            last = t
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-
-    def p99_ms(self) -> float:
-        return float(np.percentile(self.errors_ms, 99)) if self.errors_ms else float("nan")
 
 
 class ZenohRobotServer:

@@ -33,7 +33,7 @@ from rlgp_exec.hal.can_nodes import CanMap, CanNode, load_can_map, pack, unpack
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
 from rlgp_exec.hal.validate import CommandLimits, RejectCounter
-from rlgp_exec.sim.robot_server import RealTimeLoop
+from rlgp_exec.sim.realtime import RealTimeLoop
 
 __all__ = ["CanRobotServer", "open_bus"]
 

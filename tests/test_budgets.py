@@ -17,8 +17,8 @@ from rlgp_exec.planning.budget import Budget, BudgetError, cpu_clock, using
 from rlgp_exec.planning.forked import fork_map
 from rlgp_exec.planning.gnpp.planner import GnppStatus, plan_gnpp
 from rlgp_exec.planning.nlp import path as level3
+from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.hand import MAX_COVER_SPHERES, _box_cover, cover_refusal
-from rlgp_exec.planning.nlp.keyframes import Action
 from rlgp_exec.planning.rlgp import plan_scene
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.types import Literal

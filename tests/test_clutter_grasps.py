@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.hand import finger_spheres, mesh_finger_spheres
-from rlgp_exec.planning.nlp.keyframes import Action, pinned_conflict
+from rlgp_exec.planning.nlp.keyframes import pinned_conflict
 from rlgp_exec.planning.nlp.pick_fingers import palm_box_spheres
 from rlgp_exec.reach.build import nominal_q
 from rlgp_exec.reach.checker import WorldChecker

@@ -309,7 +309,7 @@ def test_after_a_stream_stopped_without_its_hold_activate_starts_clean(robot):
     reports the executive silent. The next activate (after the operator's reset) sends a keepalive and
     returns with that fault cleared, so the next task does not fault on it at its first phase."""
     from rlgp_exec.hal import make_backend
-    from rlgp_exec.sim.robot_server import RealTimeLoop
+    from rlgp_exec.sim.realtime import RealTimeLoop
 
     server, _ = robot
     hal = make_backend("zenoh", endpoint=server.endpoint, heartbeat_timeout=0.2)

@@ -12,7 +12,8 @@ import pytest
 
 from rlgp_exec.planning.drawer_replay import DrawerMotion, drawer_literal_holds, settle
 from rlgp_exec.planning.drawers import drawer_view
-from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
+from rlgp_exec.planning.nlp.action import Action
+from rlgp_exec.planning.nlp.keyframes import solve_keyframes
 from rlgp_exec.planning.validate import Phase, validate_plan
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.types import Literal

@@ -8,8 +8,9 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.keyframe_chunks import HAND_EMPTY_AFTER, ChunkedKeyframes, chunks
-from rlgp_exec.planning.nlp.keyframes import Action, KeyframeResult
+from rlgp_exec.planning.nlp.keyframes import KeyframeResult
 from rlgp_exec.planning.symbolic import best_first, goal_lower_bound, ground_scene
 from rlgp_exec.scene.generate import sorting_scene
 from rlgp_exec.scene.types import pose_matrix

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from rlgp_exec.planning.nlp import path as level3
+from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.factors import RobotSymbols
-from rlgp_exec.planning.nlp.keyframes import W_BASE, Action
+from rlgp_exec.planning.nlp.keyframes import W_BASE
 from rlgp_exec.reach.ik import arm_spheres
 from rlgp_exec.scene import load_scene
 from rlgp_exec.scene.types import Literal

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.nlp.keyframes import Action, solve_keyframes
+from rlgp_exec.planning.nlp.action import Action
+from rlgp_exec.planning.nlp.keyframes import solve_keyframes
 from rlgp_exec.planning.validate import Phase, validate_plan, validate_with_fallbacks
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene

@@ -51,7 +51,7 @@ NICHE = ROOT / "data" / "niche_hsr.toml"
 def test_an_order_forced_by_reachability_is_found_and_the_other_order_fails():
     """The block at the back of the niche is reachable only once the tall box in front of it is gone
     (tests/data/niche_hsr.toml): block first fails at the geometric levels, rlgp plans box first."""
-    from rlgp_exec.planning.nlp.keyframes import Action
+    from rlgp_exec.planning.nlp.action import Action
     from rlgp_exec.planning.sequence import SequenceGeometry
 
     scene = load_scene(NICHE)

@@ -15,7 +15,8 @@ import pytest
 
 from rlgp_exec.executive.world import carried_along, stacks, update_scene
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
-from rlgp_exec.planning.nlp.keyframes import Action, pinned_conflict
+from rlgp_exec.planning.nlp.action import Action
+from rlgp_exec.planning.nlp.keyframes import pinned_conflict
 from rlgp_exec.planning.rlgp import SEARCH_WEIGHT, RGCost, _planar_distance, plan_scene
 from rlgp_exec.planning.symbolic.grounding import ground_scene
 from rlgp_exec.planning.symbolic.relevance import without_detours

@@ -144,7 +144,7 @@ def arm_reach(robot: str) -> tuple[tuple[str, str, float], ...]:
 
 def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
     """Objects (and goal targets) no arm reaches from the start base, within ``arm_reach``'s bound."""
-    from rlgp_exec.planning.nlp.keyframes import _target_surface
+    from rlgp_exec.planning.nlp.action import target_surface
     from rlgp_exec.robot import load_robot
 
     model = load_robot(scene.robot.name)
@@ -174,7 +174,7 @@ def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
         if target in {o.name for o in scene.objects}:
             gap = far(top(target))
         else:
-            T, (hx, hy), z = _target_surface(scene, target)
+            T, (hx, hy), z = target_surface(scene, target)
 
             def nearest(s, T=T, hx=hx, hy=hy, z=z):  # the target rectangle's point nearest the shoulder
                 local = T[:2, :2].T @ (s[:2] - T[:2, 3])

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from rlgp_exec.planning.nlp.keyframes import _target_surface
+from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.symbolic.model import GroundProblem
 from rlgp_exec.reach.ik import ReachIK, arm_spheres
 from rlgp_exec.robot.config import load_robot_config
@@ -59,7 +59,7 @@ def unreachable_goal(geo, problem: GroundProblem) -> str | None:
         if not _reachable(ik, top, geo.rg.node_seeds(top, 5)):
             return f"infeasible: {o.name} cannot be reached where it is (no position IK reaches {top.round(3)} m)"
         if atom[0] == "on" and atom[2] not in problem_objects(scene):
-            T, _, z = _target_surface(scene, atom[2])
+            T, _, z = target_surface(scene, atom[2])
             above = np.array([T[0, 3], T[1, 3], z + o.size[2] + lift])
             if not _reachable(ik, above, geo.rg.node_seeds(above, 5)):
                 where = f"no position IK reaches {above.round(3)} m"

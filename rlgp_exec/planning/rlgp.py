@@ -38,7 +38,8 @@ from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, usi
 from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.memory import PlannerMemory
-from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, _target_surface
+from rlgp_exec.planning.nlp.action import Action, target_surface
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
 from rlgp_exec.planning.symbolic.errors import SymbolicError
@@ -82,7 +83,7 @@ def _site(
 ) -> FloatArray:
     """Where the hand goes for action ``a`` (world frame [m]), objects at ``where``, drawers at ``openings``
     (after the action for open/close: the knob where the drawer ends). ``surfaces``: the place targets'
-    ``_target_surface`` by name, filled as they are asked for (the search asks for the same few thousands
+    ``target_surface`` by name, filled as they are asked for (the search asks for the same few thousands
     of times)."""
     scene = geo.scene
     if a.name == "pick":
@@ -99,7 +100,7 @@ def _site(
         return where[below.name] + np.array([0.0, 0.0, below.size[2] / 2 + scene.object(a.args[1]).size[2]])
     surface = surfaces.get(a.args[2]) if surfaces is not None else None
     if surface is None:
-        surface = _target_surface(scene, a.args[2])
+        surface = target_surface(scene, a.args[2])
         if surfaces is not None:
             surfaces[a.args[2]] = surface
     T, _, z = surface
@@ -207,7 +208,7 @@ class RGCost:
                 x = goal_on[x]
             if x in self.stacking.movable:  # the chain ends on an object without a goal, or loops
                 continue
-            T, _, z = self.surfaces.get(x) or self.surfaces.setdefault(x, _target_surface(self.scene, x))
+            T, _, z = self.surfaces.get(x) or self.surfaces.setdefault(x, target_surface(self.scene, x))
             height = sum(self.scene.object(m).size[2] for m in chain)
             out[o] = np.array([T[0, 3], T[1, 3], z + height])
         return out

@@ -28,6 +28,7 @@ from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning import budget
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
+from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.hand import (
     arm_link_spheres,
     body_obstacles,
@@ -38,7 +39,7 @@ from rlgp_exec.planning.nlp.hand import (
     other_arm_obstacles,
 )
 from rlgp_exec.planning.nlp.keyframe_chunks import JOINT_ACTIONS, ChunkedKeyframes
-from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, Action, KeyframeResult, solve_keyframes
+from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, KeyframeResult, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.nlp.pick_fingers import palm_box_spheres
 from rlgp_exec.planning.plan import Level3Stats, Plan

@@ -87,10 +87,10 @@ class _Held(NamedTuple):
 
 
 def _region_rect(scene: Scene, name: str) -> tuple[FloatArray, tuple[float, float], float] | None:
-    from rlgp_exec.planning.nlp.keyframes import _target_surface
+    from rlgp_exec.planning.nlp.action import target_surface
 
     try:
-        return _target_surface(scene, name)
+        return target_surface(scene, name)
     except Exception:
         return None
 

@@ -29,6 +29,7 @@ import pybullet as p
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.gripper_limits import gripper_limits
+from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.nlp.factors import (
     GRASP_DEPTH,
     RobotSymbols,
@@ -40,7 +41,6 @@ from rlgp_exec.planning.nlp.factors import (
     yaw_pose,
 )
 from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, link_box_spheres, self_clear
-from rlgp_exec.planning.nlp.keyframes import _target_surface
 from rlgp_exec.reach import nominal_q
 from rlgp_exec.reach.ik import box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
@@ -278,7 +278,7 @@ class FactorLib:
         return {o: min(v.size[:2]) for o, v in self.objects.items() if min(v.size[:2]) > limit}
 
     def surface(self, support: str) -> tuple[FloatArray, tuple[float, float], float]:
-        return _target_surface(self.scene, support)
+        return target_surface(self.scene, support)
 
     # ----------------------------------------------------------------- the arm's shapes
     def arm_shapes(self, arm: str) -> ArmShapes:

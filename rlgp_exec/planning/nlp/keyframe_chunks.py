@@ -20,7 +20,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from rlgp_exec.planning.nlp.keyframes import Action, KeyframeResult
+from rlgp_exec.planning.nlp.action import Action
+from rlgp_exec.planning.nlp.keyframes import KeyframeResult
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene.types import Scene, StartState
 

@@ -25,7 +25,7 @@ from rlgp_exec.reach.ik import ReachIK, base_circles
 from rlgp_exec.robot.model import FloatArray, RobotModel
 
 if TYPE_CHECKING:
-    from rlgp_exec.planning.nlp.keyframes import Action
+    from rlgp_exec.planning.nlp.action import Action
 
 __all__ = ["attempt_guess", "base_free", "face_roll", "graph_seed", "push_free"]
 

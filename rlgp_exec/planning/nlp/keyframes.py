@@ -44,6 +44,7 @@ from rlgp_exec.planning import budget
 from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.nlp.action import Action, target_surface
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
     GRASP_DEPTH,
@@ -99,16 +100,6 @@ STACK_SLACK = 0.01  # [m] a stacked object's centre may stray this far past the 
 
 
 @dataclass(frozen=True)
-class Action:
-    name: str  # one of ACTIONS
-    obj: str  # the object; the cabinet for take_knob, open_drawer, close_drawer
-    target: str | None = None  # place: a region or a fixture; stack: a region or a movable; drop: the cabinet
-
-    def __str__(self) -> str:
-        return f"({self.name} {self.obj}{' ' + self.target if self.target else ''})"
-
-
-@dataclass(frozen=True)
 class KeyframeResult:
     ok: bool
     keyframes: FloatArray  # (K, nq)
@@ -127,24 +118,6 @@ def _rigid_inv(T: ca.SX) -> ca.SX:
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ p
     return out
-
-
-def _target_surface(scene: Scene, target: str) -> tuple[FloatArray, tuple[float, float], float]:
-    """(T of the target rectangle's centre (4, 4), its half extents, its surface height [m])."""
-    for r in scene.regions:
-        if r.name == target:
-            fx = scene.fixture(r.on)
-            T = fx.T.copy()
-            T[:3, 3] = (fx.T @ np.array([r.offset[0], r.offset[1], fx.size[2] / 2, 1.0]))[:3]
-            return T, (r.size[0] / 2, r.size[1] / 2), float(T[2, 3])
-    try:
-        fx = scene.fixture(target)
-    except KeyError:
-        valid = sorted([r.name for r in scene.regions] + [f.name for f in scene.fixtures])
-        raise RlgpError(f"place target {target!r} is not a region or fixture; valid: {valid}") from None
-    T = fx.T.copy()
-    T[2, 3] += fx.size[2] / 2
-    return T, (fx.size[0] / 2, fx.size[1] / 2), float(T[2, 3])
 
 
 def pinned_conflict(
@@ -227,7 +200,7 @@ def _tool_point(
         b = objs[a.target]
         top_b = tops.get(a.target, poses[a.target][:3, 3] + np.array([0.0, 0.0, b.size[2] / 2]))
         return top_b + np.array([0.0, 0.0, PLACE_LIFT + o.size[2]]) - down
-    T, _, z = _target_surface(scene, a.target)
+    T, _, z = target_surface(scene, a.target)
     return np.array([T[0, 3], T[1, 3], z + PLACE_LIFT + o.size[2]]) - down
 
 
@@ -300,7 +273,7 @@ def _site_disc(
         return T[:2, 3], float(np.hypot(*half))
     if a.name == "stack" and a.target in poses:  # onto a movable: its footprint (where the scene put it)
         return poses[a.target][:2, 3], float(np.hypot(*scene.object(a.target).size[:2])) / 2
-    T, half, _ = _target_surface(scene, a.target)
+    T, half, _ = target_surface(scene, a.target)
     return T[:2, 3], float(np.hypot(*half))
 
 
@@ -604,7 +577,7 @@ def _build(
                 top = tops.get(a.target, poses[a.target][:3, 3] + np.array([0.0, 0.0, b.size[2] / 2]))
                 targets.append(top + np.array([0.0, 0.0, o.size[2]]))
             elif a.name in SETS_DOWN:
-                T_tgt, half, z_surf = _target_surface(scene, a.target)
+                T_tgt, half, z_surf = target_surface(scene, a.target)
                 margin = max(o.size[0], o.size[1]) / 2
                 inside_rectangle(T_obj[:2, 3], T_tgt, (max(half[0] - margin, 0.0), max(half[1] - margin, 0.0)), rows)
                 rows.add(T_obj[2, 3] - (z_surf + o.size[2] / 2 + PLACE_LIFT), 0.0, 0.0)

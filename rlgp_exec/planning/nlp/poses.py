@@ -16,7 +16,7 @@ from rlgp_exec.planning.drawers import DrawerView
 from rlgp_exec.robot.model import FloatArray, RobotModel
 
 if TYPE_CHECKING:
-    from rlgp_exec.planning.nlp.keyframes import Action
+    from rlgp_exec.planning.nlp.action import Action
 
 __all__ = ["object_poses_after"]
 
