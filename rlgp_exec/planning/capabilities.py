@@ -191,9 +191,13 @@ def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
 def beyond_reach(scene: Scene) -> list[str]:
     """Why the scene's task cannot be done from the start base: each object to be moved, and each goal
     target, that no arm reaches from there within ``arm_reach``'s bound (a sound bound: an empty list does
-    not prove that the start base serves, a reason proves that it does not)."""
+    not prove that the start base serves, a reason proves that it does not). A goal naming an object the
+    scene lacks has no reach to bound (the planners name it as an invalid goal): none."""
     from rlgp_exec.planning.feasibility import moved_objects
 
+    names = {o.name for o in scene.objects}
+    if any(lit.args[0] not in names for lit in scene.goal.literals if lit.predicate in ("on", "in")):
+        return []
     return _out_of_reach(scene, moved_objects(scene))
 
 
