@@ -97,15 +97,21 @@ def test_a_kind_missing_from_a_planner_is_refused_naming_it_and_who_has_it(monke
         plan_scene(load_scene(SCENES / "tower_pr2.toml"))
 
 
-def test_gnpp_on_the_pr2_refuses_objects_beyond_the_arms_reach_from_the_start_base():
-    from rlgp_exec.planning.gnpp.planner import plan_gnpp
+def test_a_planner_that_keeps_the_pr2_base_refuses_objects_beyond_the_arms_reach(monkeypatch):
+    """Both planners drive the PR2's base, so sorting_pr2 is accepted by both; a planner entry that keeps
+    the base at its start refuses it, naming what lies beyond the reach bound and who drives the base."""
+    from rlgp_exec.planning import capabilities
 
     scene = load_scene(SCENES / "sorting_pr2.toml")
+    assert "pr2" in CAPABILITIES["gnpp_trn"].drives_base
+    refuse(scene, "gnpp_trn")
+    refuse(scene, "rlgp")
+    fixed = CAPABILITIES["gnpp_trn"]._replace(drives_base=frozenset({"hsr"}))
+    monkeypatch.setitem(capabilities.CAPABILITIES, "gnpp_trn", fixed)
     with pytest.raises(TaskRefusedError) as e:
-        plan_gnpp(scene, "gnpp_trn")
-    assert "block_green is" in str(e.value) and "rlgp drives the base: use --planner rlgp" in str(e.value)
+        refuse(scene, "gnpp_trn")
+    assert "block_green is" in str(e.value) and "drive the base: use --planner" in str(e.value)
     refuse(load_scene(SCENES / "pick_place_pr2.toml"), "gnpp_trn")  # all within reach: accepted
-    refuse(scene, "rlgp")  # R-LGP drives the base
 
 
 def test_gripper_limits_come_from_the_robots_own_fingers():

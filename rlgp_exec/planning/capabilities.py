@@ -29,6 +29,7 @@ __all__ = [
     "Capability",
     "TaskRefusedError",
     "arm_reach",
+    "beyond_reach",
     "capability",
     "needed_actions",
     "refuse",
@@ -57,7 +58,7 @@ class Capability(NamedTuple):
 
 
 _RLGP = Capability(frozenset(GEOMETRIC_ACTIONS), _ROBOTS, "rlgp")  # R-LGP's layers read planning.actions
-_GNPP = Capability(frozenset({"pick", "place", "stack"}), frozenset({"hsr"}), "gnpp")
+_GNPP = Capability(frozenset({"pick", "place", "stack"}), _ROBOTS, "gnpp")
 
 #: planner name -> what it can express; GNPP's variants share one entry
 CAPABILITIES: dict[str, Capability] = {
@@ -187,9 +188,22 @@ def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
     return reasons
 
 
+def beyond_reach(scene: Scene) -> list[str]:
+    """Why the scene's task cannot be done from the start base: each object to be moved, and each goal
+    target, that no arm reaches from there within ``arm_reach``'s bound (a sound bound: an empty list does
+    not prove that the start base serves, a reason proves that it does not). A goal naming an object the
+    scene lacks has no reach to bound (the planners name it as an invalid goal): none."""
+    from rlgp_exec.planning.feasibility import moved_objects
+
+    names = {o.name for o in scene.objects}
+    if any(lit.args[0] not in names for lit in scene.goal.literals if lit.predicate in ("on", "in")):
+        return []
+    return _out_of_reach(scene, moved_objects(scene))
+
+
 def refuse(scene: Scene, planner: str) -> None:
     """Raise TaskRefusedError if ``planner`` cannot express the scene's goal or no hand can do it (see the module)."""
-    from rlgp_exec.planning.feasibility import moved_objects, physical_refusals
+    from rlgp_exec.planning.feasibility import physical_refusals
     from rlgp_exec.planning.symbolic.errors import SymbolicError
 
     cap = capability(planner)
@@ -211,7 +225,7 @@ def refuse(scene: Scene, planner: str) -> None:
         needs = "; ".join(f"{k} for {why}" for k, why in missing.items())
         raise TaskRefusedError(scene, "[goal]", f"{planner}: {what} ({needs}); {use}")
     if scene.robot.name not in cap.drives_base:
-        far = _out_of_reach(scene, moved_objects(scene))
+        far = beyond_reach(scene)
         if far:
             able = sorted({c.suggest for c in CAPABILITIES.values() if scene.robot.name in c.drives_base
                            and set(needed) <= c.actions})

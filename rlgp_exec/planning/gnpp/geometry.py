@@ -5,10 +5,11 @@ Continuous variables (paper Sec. IV-A): an arm's configuration ``q``, and an obj
 another object), the holding arm's tool frame when held (then the object's z axis is the tool's
 -approach axis, see ``tool_upright``).
 
-``q`` is the arm's joints [rad] (the PR2: 7 per arm, base and torso fixed at the scene's start) or, for a
-robot with one arm on a mobile base (the HSR: the paper's mobile manipulator of the Field scenario),
-``[x, y, yaw]`` of the base in the world frame [m, rad] followed by the arm's joints (the HSR: lift [m]
-and four revolute joints; the torso mimics the lift). Its shapes: the PR2's hand-placed spheres
+``q`` is the arm's joints [rad] (the PR2: 7 per arm, base and torso fixed at the scene's start) or, when
+the base moves (``FactorLib.mobile``: the paper's mobile manipulator of the Field scenario), ``[x, y, yaw]``
+of the base in the world frame [m, rad] followed by the arm's joints (the HSR: lift [m] and four revolute
+joints, the torso mimicking the lift; the PR2: 7 per arm, each arm's variable carrying the one base, kept
+equal by ``SameBase``). Its shapes: the PR2's hand-placed spheres
 (probed in PyBullet), else spheres from the model: the arm links' collision cylinders, the wrist, the
 hand's and the open fingers' collision boxes, the base footprint circles (``nlp.hand``, ``nlp.factors``).
 
@@ -28,6 +29,7 @@ import numpy as np
 import pybullet as p
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.capabilities import beyond_reach
 from rlgp_exec.planning.gripper_limits import gripper_limits
 from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.nlp.factors import (
@@ -145,16 +147,23 @@ _YAW_POSE = ca.Function("yaw_pose", [_W], [yaw_pose(_W)])
 
 
 class FactorLib:
-    """The scene's factor functions and variable bounds (PR2: both arms, base and torso fixed; a robot
-    with one arm: the base is part of the arm's variable, see ``mobile``)."""
+    """The scene's factor functions and variable bounds (the base part of each arm's variable when it
+    moves, see ``mobile``; else fixed at the start, as the torso always is)."""
 
-    def __init__(self, model: RobotModel, scene: Scene) -> None:
+    def __init__(self, model: RobotModel, scene: Scene, mobile: bool | None = None) -> None:
         self.model, self.scene = model, scene
         self.q_nominal = nominal_q(model, scene)
         self.arms = tuple(m.name for m in model.config.manipulators)
-        #: the base belongs to the arm's configuration variable (one arm: the paper's mobile manipulator;
-        #: two arms on one base would share it, coupling them at every step: the PR2 keeps it fixed)
-        self.mobile = len(self.arms) == 1
+        #: the base belongs to every arm's configuration variable (the paper's mobile manipulator). One arm:
+        #: always. Several arms on one base (the PR2): by default only when an object or a goal target lies
+        #: beyond a sound bound of the arms' reach from the start base (``capabilities.beyond_reach``): the
+        #: shared base couples the arms at every step (``SameBase``) and costs three variables each, which
+        #: a task the start base serves does not need
+        self.mobile = (len(self.arms) == 1 or bool(beyond_reach(scene))) if mobile is None else mobile
+        #: the arm whose variable's base the move operators and ``EqualBase`` act on, and the others whose
+        #: variable's base ``SameBase`` ties to it (none for one arm)
+        self.base_arm = self.arms[0]
+        self.riders: dict[str, str] = {m: self.base_arm for m in self.arms[1:]} if self.mobile else {}
         self.pr2 = model.config.name == "pr2"  # its hand-placed spheres and joint rules (probed in PyBullet)
         self._probe: tuple | None = None  # (finger spheres, hand spheres, body boxes) from PyBullet
         self.objects = {o.name: o for o in scene.objects}
@@ -164,16 +173,20 @@ class FactorLib:
         self.body_boxes = self._body_boxes()
 
     def _body_boxes(self) -> list[Box]:
-        """The robot's own trunk as boxes (world frame) that its arms must clear (PR2: the torso,
-        from its collision hull's bounding box in the base frame [m])."""
+        """The robot's own trunk as boxes that its arms must clear (PR2: the torso, from its collision
+        hull's bounding box [m]): in the base frame when the base moves (``mobile``), else in the world
+        frame at the start base."""
         if self.model.config.name != "pr2":
             return []
-        x, y, yaw = self.q_nominal[:3]
         lift = self.q_nominal[self.model.index("torso_lift_joint")]
         T = np.eye(4)
-        T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-        centre = np.array([-0.15, 0.0, 0.69 + lift])  # base frame: x forward
-        T[:3, 3] = np.array([x, y, 0.0]) + T[:3, :3] @ centre
+        T[:3, 3] = [-0.15, 0.0, 0.69 + lift]  # base frame: x forward
+        if not self.mobile:
+            x, y, yaw = self.q_nominal[:3]
+            T_world_base = np.eye(4)
+            T_world_base[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+            T_world_base[:2, 3] = x, y
+            T = T_world_base @ T
         return [Box("torso", (0.36, 0.5, 0.8), T, (0.5, 0.5, 0.5, 1.0))]
 
     # ----------------------------------------------------------------- variables
@@ -423,6 +436,14 @@ class FactorLib:
             rows.add(a[i] - b[i], 0.0, 0.0)
         return [a, b], rows
 
+    def _f_SameBase(self, arm_a: str, arm_b: str):
+        """Two arms on one mobile base: the base pose [x, y, yaw] in both arms' variables the same."""
+        a = ca.SX.sym("a", len(self.arm_index(arm_a)))
+        b, rows = ca.SX.sym("b", len(self.arm_index(arm_b))), Rows.empty()
+        for i in range(3):
+            rows.add(a[i] - b[i], 0.0, 0.0)
+        return [a, b], rows
+
     def _f_ColFix(self, arm: str):
         sh = self.arm_shapes(arm)
         q, rows = ca.SX.sym("q", len(self.arm_index(arm))), Rows.empty()
@@ -440,6 +461,10 @@ class FactorLib:
             for k in sh.fixture:
                 pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
                 rows.add(box_sdf(pl, np.asarray(b.size) / 2), sh.radii[k], ca.inf)
+        if self.mobile and self.body_boxes:  # the trunk boxes are in the base frame: the spheres into it
+            c, s = ca.cos(q[2]), ca.sin(q[2])
+            R_base_world = ca.vertcat(ca.horzcat(c, s, 0), ca.horzcat(-s, c, 0), ca.horzcat(0, 0, 1))
+            P = R_base_world @ (P - ca.repmat(ca.vertcat(q[0], q[1], 0.0), 1, P.shape[1]))
         for b in self.body_boxes:  # the elbow, forearm, wrist and hand clear of the trunk
             Tinv = np.linalg.inv(b.T)
             for k in sh.trunk:
@@ -449,7 +474,8 @@ class FactorLib:
             rs = self._symbols(arm, q)
             rects = [(np.asarray(fx.T), np.asarray(fx.size)) for fx in self.scene.fixtures]
             footprint_clear(rs, rects, rows, margin=BASE_MARGIN)
-            self_clear(self.model, rs.q, arm_link_spheres(self.model, arm), self._probed()[2], rows)
+            if not self.pr2:  # the PR2's arms clear its trunk by the boxes above
+                self_clear(self.model, rs.q, arm_link_spheres(self.model, arm), self._probed()[2], rows)
         return [q], rows
 
     def _f_ColAA(self, arm_a: str, arm_b: str):
@@ -510,6 +536,6 @@ class FactorLib:
 
 
 FACTOR_KINDS = (
-    *("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "EqualBase"),
+    *("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "EqualBase", "SameBase"),
     *("ColFix", "ColAA", "ColAO", "ColHO", "ColOO"),
 )

@@ -229,6 +229,7 @@ def initial_guess(
                     h = lib.objects[o].size[2]
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
                     q[p] = _keyframe_ik(lib, ik, p, top, q[p])[1]
+                    _share_base(lib, q, p)
                     held[o] = _held_of(lib, p, q[p], world[o])
                 out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
                 continue
@@ -251,6 +252,7 @@ def initial_guess(
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
                     ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm])
+                    _share_base(lib, q, arm)
                     if ok and o in held:
                         # the object put down turned as the hand holds it: the Kin factor's yaw row
                         # (sine of the yaw difference) is stationary a quarter turn off, where a
@@ -262,8 +264,7 @@ def initial_guess(
             out[Var("q", m, t)] = q[m].copy()
         prev = par
     if lib.mobile:
-        for m in arms:
-            _hold_base(out, states, m)
+        _hold_base(out, states, lib.base_arm, arms)
     missing = [v for v in variables if v not in out]
     if missing:
         log.warning("no initial value for %s", missing[:5])
@@ -280,28 +281,38 @@ def _keyframe_ik(lib: FactorLib, ik: TopIK, arm: str, top: FloatArray, q_ref: Fl
     return ik.solve(arm, top, q_ref)
 
 
-def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], arm: str) -> None:
-    """A mobile arm's base in ``out`` made constant over each stretch of states in which it is not moving
-    (as ``EqualBase`` will hold it): the base of the stretch's first keyframe (the IK chose it to reach
-    there; the start's for the first stretch); a state in which it moves takes the next stretch's."""
+def _share_base(lib: FactorLib, q: dict[str, FloatArray], arm: str) -> None:
+    """The base ``arm``'s keyframe IK chose, in every arm's variable in ``q`` (arms riding one base)."""
+    if lib.mobile:
+        for m in q:
+            q[m][:3] = q[arm][:3]
+
+
+def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], mover: str, arms: Sequence[str]) -> None:
+    """The base of the mobile arm ``mover`` (and of the ``arms`` that ride it) in ``out`` made constant over
+    each stretch of states in which it is not moving (as ``EqualBase`` and ``SameBase`` will hold it): the
+    base of the stretch's first keyframe of any arm (the IK chose it to reach there; the start's for the
+    first stretch); a state in which it moves takes the next stretch's."""
     runs: list[list[int]] = []
     for t, s in enumerate(states):
-        if moving(arm) in s:
+        if moving(mover) in s:
             continue
         if runs and runs[-1][-1] == t - 1:
             runs[-1].append(t)
         else:
             runs.append([t])
     for k, run in enumerate(runs):
-        qs = [out[Var("q", arm, t)] for t in run]
-        first = next((i for i in range(1, len(qs)) if not np.allclose(qs[i], qs[i - 1])), 0)
-        base = qs[0][:3].copy() if run[0] == 0 else qs[first][:3].copy()
+        base = out[Var("q", mover, run[0])][:3].copy()
+        if run[0] > 0:
+            changed = ((t, m) for t in run[1:] for m in arms
+                       if not np.allclose(out[Var("q", m, t)], out[Var("q", m, t - 1)]))
+            t1, m1 = next(changed, (run[0], mover))
+            base = out[Var("q", m1, t1)][:3].copy()
         end = runs[k + 1][0] if k + 1 < len(runs) else len(states)
-        for t in range(run[0], end):  # the stretch, then the moving states after it take the next base
-            out[Var("q", arm, t)][:3] = base
-        if k > 0:
-            for t in range(runs[k - 1][-1] + 1, run[0]):
-                out[Var("q", arm, t)][:3] = base
+        first = runs[k - 1][-1] + 1 if k > 0 else run[0]
+        for t in range(first, end):  # the moving states before the stretch, the stretch, the moving ones after
+            for m in arms:
+                out[Var("q", m, t)][:3] = base
 
 
 def ik_seed(

@@ -6,8 +6,10 @@ phase of straight joint-space segments: every arm left at a keyframe first lifts
 other arm then returns to its start posture (one that holds an object takes it along); the acting arm
 moves to ``LIFT`` above its keyframe, then down onto it along the same vertical line (grasp or
 release). A mobile arm's ``end-move`` is the drive to the base of the next keyframes
-(``start-move`` lifts the hand): the arm held in one posture (its own, folded with an empty hand, or
-raised), the base straight if that motion is free, else round the fixtures by OMPL on the base alone,
+(``start-move`` lifts the hand; with arms riding the same base, every arm goes to its start posture
+there, the base kept, as the other arms do before an action): the arm held in one posture (its own,
+folded with an empty hand, or raised), the base straight if that motion is free, else round the
+fixtures by OMPL on the base alone,
 each motion checked in PyBullet with the resting objects and the held one (``reach.ompl_plan.drive_base``,
 as R-LGP drives). Each acting arm's move to its approach configuration is also returned as a
 ``Transit``: the straight motion the paper's trajectory stage re-optimises (``gnpp.trajectory``); so is
@@ -170,10 +172,17 @@ def phases_of(
         """The objects in no hand before action ``k`` (0-based): world pose (4,) [x, y, z, yaw]."""
         return {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in lib.objects if o not in holding.values()}
 
-    def lift_low(path: list[FloatArray], active: str | None, where: str, k: int) -> str | None:
+    def home(arm: str) -> FloatArray:
+        """The arm's start posture where the base now stands."""
+        q = lib.home_q(arm)
+        if lib.mobile:
+            q[:3] = cur[arm][:3]
+        return q
+
+    def lift_low(path: list[FloatArray], active: str | None, where: str, k: int, all_home: bool = False) -> str | None:
         """Raise every arm left down at its last keyframe (appending to ``path``); with an ``active`` arm
-        about to act (action ``k``, 0-based), the other idle arms also go home, each move a ``Transit``
-        (``home``). The reason on failure."""
+        about to act (action ``k``, 0-based), the other idle arms also go home (``all_home``: every arm),
+        each move a ``Transit`` (``home``). The reason on failure."""
         for arm in arms:
             if low[arm]:
                 up = _lift(lib, ik, arm, cur[arm])
@@ -183,11 +192,11 @@ def phases_of(
                     cur[arm] = row
                     path.append(full())
                 low[arm] = False
-            if active is not None and arm != active and not np.array_equal(cur[arm], lib.home_q(arm)):
+            if active is not None and (arm != active or all_home) and not np.array_equal(cur[arm], home(arm)):
                 # out of the active arm's way, with what it holds: the graph-NLP kept the arms apart
                 # at the keyframes only, not along the approach
                 transits.append(Transit(len(phases), len(path) - 1, arm, grip_of(arm, k), resting_at(k), home=True))
-                cur[arm] = lib.home_q(arm)
+                cur[arm] = home(arm)
                 path.append(full())
         return None
 
@@ -197,7 +206,10 @@ def phases_of(
         if v not in values:
             return f"no keyframe for {a}"
         path = [full()]
-        why = lift_low(path, m, f"its last action (before {a})", k)
+        # arms sharing the base all go to their start posture before it moves: the drive holds one posture
+        # (``drive_postures``: one arm's), and an arm left stretched out would sweep across the fixtures
+        shared = bool(lib.riders) and a.name == MOVES[0]
+        why = lift_low(path, m, f"its last action (before {a})", k, all_home=shared)
         if why is not None:
             return why
         obj = holding.get(m)
@@ -211,7 +223,8 @@ def phases_of(
                 if drive is None:
                     return f"no collision-free drive for {a} to base {np.round(values[v][:3], 3).tolist()}"
                 path += list(drive[1:])
-                cur[m] = drive[-1][lib.arm_index(m)]
+                for arm in arms:  # every arm's variable carries the base
+                    cur[arm] = drive[-1][lib.arm_index(arm)]
             phases.append(Phase(np.array(path), obj, arm=m, carried=carried, action=k))
             keyframes.append(full())
             continue

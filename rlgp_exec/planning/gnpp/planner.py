@@ -25,7 +25,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, cpu_clock, using
-from rlgp_exec.planning.capabilities import refuse
+from rlgp_exec.planning.capabilities import beyond_reach, refuse
 from rlgp_exec.planning.gnpp.conflicts import (
     FILTER_MAX,
     FILTER_MAX_NO_ROBOT,
@@ -140,6 +140,7 @@ def plan_gnpp(
     lm_verdicts: bool = False,
     memory_cap_bytes: int = MEMORY_CAP_BYTES,
     max_expansions: int = LOGIC_MAX_EXPANSIONS,
+    drive_base: bool | None = None,
 ) -> GnppResult:
     """Plan the scene's goal with a GNPP variant (see ``VARIANTS``); with ``memory``, the subgraph
     database (variants with one) is the one earlier calls in this environment filled. ``timeout_s``
@@ -153,7 +154,8 @@ def plan_gnpp(
     inside its inequality rows (``GraphSolver.polish``) before it is blocked. The budget (``timeout_s``, and
     ``memory_cap_bytes`` of growth, ``planning.budget``) is checked inside every stage; once spent, the
     status is TIMEOUT with a reason "budget: ..." naming the stage and iteration. ``max_expansions``: the
-    internal logic search's expansion cap per iteration (Fast Downward has its own)."""
+    internal logic search's expansion cap per iteration (Fast Downward has its own). ``drive_base``: the base
+    moves (the paper's start-move / end-move), or stays at the start; None: ``FactorLib.mobile``'s rule."""
     if variant not in VARIANTS:
         raise RlgpError(f"unknown GNPP variant {variant!r}; valid: {list(VARIANTS)}")
     refuse(scene, variant)  # TaskRefusedError before any search: what GNPP or the robot cannot do
@@ -162,7 +164,8 @@ def plan_gnpp(
     with using(b):
         try:
             return _plan(
-                scene, variant, logic, max_iterations, memory, trajectories, on_nlp, lm_verdicts, b, max_expansions
+                scene, variant, logic, max_iterations, memory, trajectories, on_nlp, lm_verdicts, b, max_expansions,
+                drive_base,
             )
         except BudgetError as e:  # in the set-up (the loop returns its own)
             log.info("%s: %s", variant, e)
@@ -181,12 +184,15 @@ def _plan(
     lm_verdicts: bool,
     budget: Budget,
     max_expansions: int = LOGIC_MAX_EXPANSIONS,
+    drive_base: bool | None = None,
 ) -> GnppResult:
     """``plan_gnpp`` under its open ``budget``."""
     opts = VARIANTS[variant]
     t0, c0 = time.perf_counter(), budget.start
     model = load_robot(scene.robot.name)
-    lib = FactorLib(model, scene)
+    lib = FactorLib(model, scene, drive_base)
+    if lib.mobile and lib.riders:
+        log.info("%s: the base moves (its arms share it): %s", scene.name, "; ".join(beyond_reach(scene)) or "asked")
     ik, solver = TopIK(lib), GraphSolver(lib)
     solver.observer = on_nlp
     if lm_verdicts:
@@ -200,8 +206,8 @@ def _plan(
         fixed = {n: float(lib.q_nominal[i]) for i, n in enumerate(model.joint_names) if i not in arm_idx}
         db = SubgraphDB() if memory is None else memory.subgraph_db(scene, fixed)
         db.bind(lib.call_context())
-    mobile = lib.arms if lib.mobile else ()
-    task = add_flags(add_moves(without_detours(ground_scene(scene, manipulators=list(lib.arms))), mobile))
+    mobile = (lib.base_arm,) if lib.mobile else ()
+    task = add_flags(add_moves(without_detours(ground_scene(scene, manipulators=list(lib.arms))), mobile, lib.riders))
     wide = lib.too_wide()
     if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
         ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
@@ -274,7 +280,7 @@ def _plan(
                 reasons.append(f"{bad[0]}: no geometry for {bad[0].name}")
                 continue
             budget.stage = "initial guess"
-            graph = factors_of(states, lib.arms, objects, mobile)
+            graph = factors_of(states, lib.arms, objects, mobile, lib.riders)
             guess = initial_guess(lib, ik, states, variables(graph))
             check = Checker(solver, guess, db)
             values: dict | None  # the graph-NLP's solution (None: every conflict found was refuted)

@@ -7,11 +7,13 @@ free or the held object. Two flag atoms are added so that Pi is time-invariant: 
 (o rests where the scene put it; deleted by every pick of o — the paper's ``parent = o.init``) and
 ``(initial-state)`` (deleted by every action; the arms are at their start configuration).
 
-A mobile arm (one arm on a mobile base: the paper's Field scenario) gets the paper's two move operators
+A mobile arm (an arm on a mobile base: the paper's Field scenario) gets the paper's two move operators
 (``add_moves``): ``(start-move m)`` adds ``(moving m)``, ``(end-move m)`` deletes it, and pick / place /
 stack by m require ``(not (moving m))``. While m is moving its base may change; otherwise ``EqualBase``
 holds it between time steps, so a base pose that cannot reach two keyframes is a conflict like any
-other, and the logic learns to move the base between them.
+other, and the logic learns to move the base between them. Further arms on the same base (the PR2's
+second arm: a "rider" of m) have no move operators of their own: their actions also require
+``(not (moving m))``, and ``SameBase`` ties the base in their variable to m's at every step.
 
 Continuous variables per time step t (the state s_t, i.e. after the t-th action): ``q``/arm (7,; a
 mobile arm: base x, y, yaw and its joints) and ``x``/object (4,) (see ``geometry``). Pi (each factor
@@ -28,6 +30,7 @@ Place(o,s) {(holding m o)} -> {(on o s)}           x_{t+1}^o on surface/slot s (
 On(o,p)    {(holding m o)} -> {(on o p)}           x_{t+1}^o resting on object x_{t+1}^p
 Equal(o)   parent unchanged t -> t+1               x_t^o = x_{t+1}^o
 EqualBase  {not (moving m)} at t and t+1           base of q_t^m = base of q_{t+1}^m (mobile arm m)
+SameBase   {not (initial-state)} at t              base of q_t^r = base of q_t^m (r rides m's base)
 ColFix(m)  {not (initial-state)} at t              arm m clear of the fixtures
 ColAA      {not (initial-state)} at t              the two arms clear of each other
 ColAO(m,o) {not (initial-state), not (holding * o)} arm m (up to the wrist) clear of resting object o
@@ -43,7 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from rlgp_exec.planning.symbolic.model import Atom, GroundAction, GroundProblem, Operator, SymbolicState
@@ -137,16 +140,18 @@ def moving(arm: str) -> Atom:
     return ("moving", arm)
 
 
-def add_moves(problem: GroundProblem, arms: Sequence[str]) -> GroundProblem:
+def add_moves(problem: GroundProblem, arms: Sequence[str], riders: Mapping[str, str] | None = None) -> GroundProblem:
     """``problem`` with start-move / end-move for each mobile arm in ``arms``, and pick / place / stack by
-    it only while it is not moving (see the module docstring)."""
+    it, or by an arm riding its base (``riders``: arm -> the mobile arm), only while it is not moving (see
+    the module docstring)."""
     if not arms:
         return problem
+    mover = {**{m: m for m in arms}, **(riders or {})}
     ops = []
     for op in problem.operators:
         arm = op.action.args[0] if op.action.args else None
-        if arm is not None and arm in arms:
-            op = Operator(op.action, op.pre, op.pre_neg | {moving(arm)}, op.add, op.delete, op.cond_effects)
+        if arm is not None and arm in mover:
+            op = Operator(op.action, op.pre, op.pre_neg | {moving(mover[arm])}, op.add, op.delete, op.cond_effects)
         ops.append(op)
     for m in arms:
         start, end = GroundAction(MOVES[0], (m,)), GroundAction(MOVES[1], (m,))
@@ -171,12 +176,16 @@ def _ps(pos: Sequence[Atom] = (), neg: Sequence[Atom] = ()) -> PartialState:
 
 
 def _state_factors(
-    t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str]
+    t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str],
+    riders: Mapping[str, str],
 ) -> list[Factor]:
     out: list[Factor] = []
     par = parents(s)
     if INITIAL in s:
         out += [Factor(("RefQ", m), (Var("q", m, t),), ((t, _ps([INITIAL])),)) for m in arms]
+    else:  # (at the start RefQ pins every base: a SameBase there would repeat an equality)
+        out += [Factor(("SameBase", m, r), (Var("q", m, t), Var("q", r, t)), ((t, _ps((), [INITIAL])),))
+                for r, m in sorted(riders.items())]
     resting = sorted(o for o in movable if o in par and par[o] not in arms)
     for o in resting:
         if ("at-init", o) in s:
@@ -234,14 +243,16 @@ def _transition_factors(
 
 
 def factors_of(
-    states: Sequence[SymbolicState], arms: Sequence[str], objects: Sequence[str], mobile: Sequence[str] = ()
+    states: Sequence[SymbolicState], arms: Sequence[str], objects: Sequence[str], mobile: Sequence[str] = (),
+    riders: Mapping[str, str] | None = None,
 ) -> list[Factor]:
     """Pi applied to a state sequence s_0 .. s_n: every factor of the graph-NLP, in time order
-    (``mobile``: the arms whose variable includes their base, see ``add_moves``)."""
+    (``mobile``: the arms with move operators, whose variable includes their base; ``riders``: arm ->
+    the mobile arm whose base it shares; see ``add_moves``)."""
     arms_l, movable = list(arms), set(objects)
     out: list[Factor] = []
     for t, s in enumerate(states):
-        out += _state_factors(t, s, states[t - 1] if t else None, arms_l, movable)
+        out += _state_factors(t, s, states[t - 1] if t else None, arms_l, movable, riders or {})
         if t + 1 < len(states):
             out += _transition_factors(t, s, states[t + 1], arms_l, movable, mobile)
     return out
