@@ -31,6 +31,7 @@ import pybullet as p
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.capabilities import beyond_reach
 from rlgp_exec.planning.gripper_limits import gripper_limits
+from rlgp_exec.planning.margins import BASE_MARGIN, PLACE_LIFT
 from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.nlp.factors import (
     GRASP_DEPTH,
@@ -64,7 +65,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-PLACE_LIFT = 0.003  # [m] an object is released this far above its support
 MAX_TILT = 0.9  # [rad] a grasping hand leans at most this far from vertical
 WRIST_FLEX_MIN = -1.65  # [rad] (PR2) beyond it the open fingers touch the forearm at some rolls
 PAN_CROSS_MAX = 0.1  # [rad] (PR2) shoulder pan towards the other arm's side at most
@@ -80,7 +80,6 @@ FINGER_CLEAR = 0.003  # [m] an object let go keeps this much from the open finge
 FINGER_UP = 0.025  # [m] the second point of each open finger, this far above its tip (PR2 finger links)
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 FLOOR = 3.0  # [m] a mobile base's x and y stay within +-FLOOR of the world origin (as objects' poses do)
-BASE_MARGIN = 0.02  # [m] a mobile base keeps this far from the fixtures' footprints (as R-LGP's keyframes)
 #: [m] a hand descends onto each keyframe and lifts off it along a vertical line this long (``motion``):
 #: ``ColHO`` keeps that whole line of each hand sphere clear of the resting objects (the replay checks
 #: it; a neighbour stacked higher than the keyframe met the fingers 4-6 cm up, obstacles_tower_pr2)

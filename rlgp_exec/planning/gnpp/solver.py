@@ -28,6 +28,7 @@ from rlgp_exec.planning.gnpp.graph import structure, variables
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
+from rlgp_exec.planning.margins import FEAS_TOL
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = [
@@ -46,7 +47,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-FEAS_TOL = 1e-4  # [m or rad] a factor is satisfied when no row is off its bounds by more
 W_REG = 1e-3
 X_JITTER = np.array([0.06, 0.06, 0.01, 0.6])  # [m, m, m, rad] std of an object start's perturbation
 IPOPT = {

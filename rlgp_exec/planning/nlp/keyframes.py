@@ -44,6 +44,7 @@ from rlgp_exec.planning import budget
 from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
+from rlgp_exec.planning.margins import BASE_MARGIN, FEAS_TOL, PLACE_LIFT
 from rlgp_exec.planning.nlp.action import Action, target_surface
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.factors import (
@@ -74,17 +75,14 @@ __all__ = ["ACTIONS", "DRAWER_ACTIONS", "Action", "KeyframeResult", "solve_keyfr
 log = logging.getLogger(__name__)
 W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
-FEAS_TOL = 1e-4
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
 # IPOPT's successive restoration iterations before it gives a start up. Stuck starts stayed in restoration
 # to the 400-iteration cap (pick_place_pr2 seed 3: two starts, 366 and 390 iterations in it, 1.8 s each);
 # of the keyframe solves of pick_place_pr2 and sorting_pr2 seeds 0-19 and table_clearing_hsr seeds 0-5,
 # none that succeeded spent more than 28 successive iterations there
 MAX_RESTO_ITER = 100
-PLACE_LIFT = 0.005  # [m] an object is released this far above its support
 HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
-BASE_MARGIN = 0.02  # [m] the base keeps this far from fixture footprints (as the graph's IK does)
 PLACE_GAP = 0.02  # [m] between objects placed on one target (footprint circles)
 BESIDE_GAP = 0.01  # [m] between a set-down object's footprint circle and a standing object's box
 REACH_SLACK = 0.05  # [m] boxes this much beyond what the fingers can reach from an action's site keep their rows too

@@ -61,6 +61,7 @@ from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
 from rlgp_exec.planning.forked import Result, fork_map
+from rlgp_exec.planning.margins import BASE_MARGIN, FEAS_TOL
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows, box_clear, footprint_clear
 from rlgp_exec.planning.nlp.hand import _box_cover, cover_refusal, points_clear, self_rows_function
 from rlgp_exec.planning.nlp.keyframes import W_BASE
@@ -72,14 +73,12 @@ __all__ = ["PathResult", "PathStatus", "Segment", "optimize_paths", "resample"]
 log = logging.getLogger(__name__)
 T_DEFAULT = 12  # waypoints per segment, ends included (with the step midpoints: 21 checkpoints)
 MARGIN = 0.01  # [m] spheres keep this from the world boxes
-BASE_MARGIN = 0.02  # [m] base footprint circles keep this from fixture footprints
 SLACK = 1.5  # the step time is this times the warm start's (per-step velocity bound)
 CUTOFF = 0.05  # [m] rows with more slack than this all along the warm start are left out
 # kept rows x checkpoints from which a row is left out at the checkpoints where it is far (``_Block.on``):
 # a long base move's block solves faster pruned; the HSR's smaller segments lose more to the re-solves that
 # put rows back than the smaller NLP saves (their optima leave both the guide and the line)
 PRUNE_MIN = 600
-FEAS_TOL = 1e-4
 REACH = 0.3  # [m] how far past a sphere's centre or the tool the robot reaches (radius, fingers, held object)
 PAD = 0.05  # [rad or m] an arm joint stays within the warm start's range widened by this
 PAD_STRICT = 0.3  # ... for a ``strict`` segment: a straight move has no detour in its range to keep to
