@@ -79,9 +79,8 @@ GEOMETRIC = ("pick", "place", "stack", *MOVES)
 
 class Logic(enum.Enum):
     #: A* with hmax (admissible, and it has conditional effects) on the ground, reformulated task: shortest
-    #: plans first, as the internal search and the paper's N. lama-first (satisficing) returned plans with
-    #: detours: tower_pr2 96 s and 1276 NLPs on seed 0, no plan within 100 s on seeds 1 and 2 (its calls
-    #: timing out at ~10 s), against 3.8-5.0 s and 261-263 NLPs with A* (stop 30, seeds 0-2)
+    #: plans first, as the internal search and the paper's N. lama-first (satisficing) returns plans with
+    #: detours, each one more graph-NLP to refute, and is many times slower on the towers
     FAST_DOWNWARD = "fd"
     INTERNAL = "internal"  # our best-first search on the same compiled task
 

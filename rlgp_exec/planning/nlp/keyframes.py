@@ -326,12 +326,8 @@ def _pose_variable(name: str, T: ca.SX, rows: Rows) -> tuple[ca.SX, ca.SX]:
 
 
 def _constraints(rows: Rows) -> ca.SX:
-    """The rows' g as one column. Not merged by ``ca.cse`` any more: that paid while IPOPT had the exact
-    Hessian (nlpsol 0.48 -> 0.27 s on pick_place_pr2), but with the curvature-free rows (``_hess_lag``)
-    the merge cost more than it saved: cse alone took 0.30 s of table_clearing_hsr's 0.65 s build. Side by
-    side without it (stop 31), keyframe stage median: table_clearing_hsr 10 seeds 1.40 -> 1.18 s (planning
-    2.32 -> 2.14 s), pick_place_pr2 12 seeds 0.52 -> 0.48 s, sorting_pr2 12 seeds 0.34 -> 0.31 s; every run
-    solved, the base paths the same but four (two shorter by 0.2 and 3.0 m, two longer by 0.1 and 0.7 m)."""
+    """The rows' g as one column, not merged by ``ca.cse``: with the curvature-free rows (``_hess_lag``)
+    the merge costs more to build than it saves in evaluation."""
     return ca.vertcat(*rows.g) if rows.g else ca.SX(0, 1)
 
 
@@ -630,14 +626,8 @@ def _build(
         cost += W_BASE * ca.sumsqr(d[:2]) + W_BASE * d[2] ** 2 + ca.sumsqr(d[3:])
         prev = Z[:, k]
     cost += W_TILT * sum(tilts, ca.SX(0))
-    # Each start is one IPOPT solve of the motion cost from its initial guess. Until stop 32 a start first solved
-    # for the feasible point nearest its guess, then for the motion cost from there (two solves: a guess's basin
-    # kept, table_clearing_hsr 16/16 starts with the graph's seeds then, against 3/8 before them). Side by side
-    # with the seeds and restarts of today (fresh processes), one solve against two: pick_place_pr2 seeds 1-44,
-    # medians 1.067 -> 0.965, 1.038 -> 1.017, 1.163 -> 1.058 s (seeds 1-12, 13-24, 25-44), base paths in all
-    # 185.5 -> 188.4 m (one seed 2.9 m longer, one 4.4 m shorter); sorting_pr2 seeds 1-24 1.103 -> 0.946 and
-    # 0.951 -> 0.926 s, 184.3 -> 181.9 m; table_clearing_hsr seeds 1-16: keyframes 1.15 -> 0.91 and 1.15 ->
-    # 0.94 s (medians), 156.7 -> 156.9 m; every plan found
+    # Each start is one IPOPT solve of the motion cost from its initial guess: with the graph's seeds a
+    # first solve for the feasible point nearest the guess no longer keeps a better basin, and costs time
     x = ca.vertcat(ca.vec(Z), *(P for P, _, _ in aux))
     pp = ca.SX.sym("p", 0)
     g_all = _constraints(rows)
