@@ -335,8 +335,8 @@ def _jacobian(g: ca.SX, x: ca.SX, n: int) -> ca.SX:
     """dg/dx, the rows differentiated in groups by how many variables they read (at most ``n``, one
     keyframe's; at most 2 n; more: the rows that also read another keyframe or a pose variable). CasADi's
     forward sweeps colour the columns of all the rows at once, as many as the widest row reads (32 on
-    pick_place_pr2, for 309 of its 393 rows that read at most 10): grouped, the narrow rows take 10.
-    pick_place_pr2 seed 1: 112 -> 72 ms; the same entries."""
+    pick_place_pr2, for 309 of its 393 rows that read at most 10): grouped, the narrow rows take 10, and
+    the entries are the same."""
     if g.numel() == 0:
         return ca.SX(0, x.numel())
     width = np.diff(ca.jacobian_sparsity(g, x).T.colind())  # per row: the variables it reads
@@ -354,11 +354,7 @@ def _hess_lag(x: ca.SX, p: ca.SX, f: ca.SX, g: ca.SX, labels: list[str]) -> ca.F
     the clearance and base footprint rows (``CURVATURE_FREE``): those are most of the rows, and
     their second derivatives most of the Hessian's cost, as sequential convexification leaves them
     out too. The rows themselves and their Jacobian stay exact, so a solution is the same KKT point.
-    Side by side, CPU in the keyframe NLP: pick_place_pr2 seeds 1-6 median 1.15 -> 0.77 s (build
-    ~0.4 -> 0.15 s); sorting_pr2 seeds 1-12 median 0.72 -> 0.62 s, 24.9 -> 13.6 s in all;
-    table_clearing_hsr seeds 1-4 25.0 -> 15.8 s in all (build 1.2 -> 0.4 s, and fewer iterations:
-    seed 1 153 + 23 + 102 -> 113 + 24 + 56). Proving a start infeasible may take more iterations
-    (sorting seed 7: 83 -> 368); capping them at 150 or 250 was no better than 400 (24 seeds)."""
+    Proving a start infeasible may take more iterations."""
     curved = [i for i, label in enumerate(labels) if not label.endswith(CURVATURE_FREE)]
     lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", g.numel())
     lagrangian = lam_f * f + (ca.dot(lam_g[curved], g[curved]) if curved else 0.0)
