@@ -10,15 +10,28 @@ required it clear and ``stackable``).
 
 from __future__ import annotations
 
+import enum
 from typing import NamedTuple
 
 from rlgp_exec.errors import RlgpError
 
-__all__ = ["ACTION_KINDS", "GEOMETRIC_ACTIONS", "MOVES_OBJECT", "RELEASES", "SETS_DOWN", "ActionKind", "kind"]
+__all__ = ["ACTION_KINDS", "GEOMETRIC_ACTIONS", "MOVES_OBJECT", "RELEASES", "SETS_DOWN", "ActionKind", "Kind", "kind"]
+
+
+class Kind(enum.StrEnum):
+    """An action kind's name, as the PDDL domain and the plans spell it (a str: ``Kind.PICK == "pick"``)."""
+
+    PICK = "pick"
+    PLACE = "place"
+    STACK = "stack"
+    DROP = "drop"
+    TAKE_KNOB = "take_knob"
+    OPEN_DRAWER = "open_drawer"
+    CLOSE_DRAWER = "close_drawer"
 
 
 class ActionKind(NamedTuple):
-    name: str  # the symbolic action's name (the PDDL domain's)
+    name: Kind  # the symbolic action's name (the PDDL domain's)
     target: str  # what the target argument is: "none", "surface" (region/fixture/movable), "cabinet"
     moves_object: bool  # its keyframe moves or lets go of an object (the object is not an obstacle there)
     releases: bool  # the hand lets the object go at its keyframe
@@ -26,13 +39,13 @@ class ActionKind(NamedTuple):
 
 
 ACTION_KINDS: tuple[ActionKind, ...] = (
-    ActionKind("pick", "none", True, False, False),
-    ActionKind("place", "surface", True, True, True),
-    ActionKind("stack", "surface", True, True, True),
-    ActionKind("drop", "cabinet", True, True, False),
-    ActionKind("take_knob", "none", False, False, False),
-    ActionKind("open_drawer", "none", False, False, False),
-    ActionKind("close_drawer", "none", False, False, False),
+    ActionKind(Kind.PICK, "none", True, False, False),
+    ActionKind(Kind.PLACE, "surface", True, True, True),
+    ActionKind(Kind.STACK, "surface", True, True, True),
+    ActionKind(Kind.DROP, "cabinet", True, True, False),
+    ActionKind(Kind.TAKE_KNOB, "none", False, False, False),
+    ActionKind(Kind.OPEN_DRAWER, "none", False, False, False),
+    ActionKind(Kind.CLOSE_DRAWER, "none", False, False, False),
 )
 GEOMETRIC_ACTIONS = tuple(k.name for k in ACTION_KINDS)
 MOVES_OBJECT = frozenset(k.name for k in ACTION_KINDS if k.moves_object)

@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, kind
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, Kind, kind
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, using
 from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
@@ -86,16 +86,16 @@ def _site(
     ``target_surface`` by name, filled as they are asked for (the search asks for the same few thousands
     of times)."""
     scene = geo.scene
-    if a.name == "pick":
+    if a.name == Kind.PICK:
         o = scene.object(a.args[1])
         return where[o.name] + np.array([0.0, 0.0, o.size[2] / 2])
     if a.name in DRAWER_ACTIONS:
         return geo.drawers[a.args[1]].T_world_knob(openings[a.args[1]])[:3, 3]
-    if a.name == "drop":
+    if a.name == Kind.DROP:
         v, o = geo.drawers[a.args[2]], scene.object(a.args[1])
         T, _ = v.drop_rect(max(openings[a.args[2]], v.travel), max(o.size[:2]) / 2)
         return np.array([T[0, 3], T[1, 3], v.rim_z(openings[a.args[2]]) + o.size[2]])
-    if a.name == "stack" and a.args[2] in where:  # on the top face of the object below, where it is now
+    if a.name == Kind.STACK and a.args[2] in where:  # on the top face of the object below, where it is now
         below = scene.object(a.args[2])
         return where[below.name] + np.array([0.0, 0.0, below.size[2] / 2 + scene.object(a.args[1]).size[2]])
     surface = surfaces.get(a.args[2]) if surfaces is not None else None
@@ -109,9 +109,9 @@ def _site(
 
 def _after(geo: SequenceGeometry, a: GroundAction, openings: dict[str, float]) -> dict[str, float]:
     """The drawer openings after action ``a`` (a new dict when a drawer moves, else ``openings``)."""
-    if a.name == "open_drawer":
+    if a.name == Kind.OPEN_DRAWER:
         return {**openings, a.args[1]: geo.drawers[a.args[1]].travel}
-    if a.name == "close_drawer":
+    if a.name == Kind.CLOSE_DRAWER:
         return {**openings, a.args[1]: 0.0}
     return openings
 
@@ -186,7 +186,7 @@ class RGCost:
     def _goal_site(self, o: str, s: str, context: _Where) -> FloatArray:
         kind = self.kind[s]  # a stack's site is on its support object, wherever the plan has left it
         openings = context.openings
-        if kind == "drop":
+        if kind == Kind.DROP:
             openings = {**openings, s: self.geo.drawers[s].travel}
         final = self._final.get(o)
         if final is not None:  # a tower's block: where the tower will have it, not on its support's site now

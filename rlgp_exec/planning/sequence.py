@@ -26,6 +26,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning import budget
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.action import Action
@@ -406,7 +407,7 @@ class SequenceGeometry:
                 phases.append(Phase(np.vstack([self.q0[None], np.array(up0)]), held))
                 q_prev = up0[-1]
         for k, (a, q_k) in enumerate(zip(actions, kf.keyframes, strict=True)):
-            if a.name in ("open_drawer", "close_drawer"):  # the hand on the knob drives the drawer
+            if a.name in (Kind.OPEN_DRAWER, Kind.CLOSE_DRAWER):  # the hand on the knob drives the drawer
                 phases.append(Phase(np.array([q_prev, q_k]), None, knob=a.obj, drives_drawer=True, action=k))
                 openings = dict(kf.openings[k])
                 q_leave = self._along_axis(q_k, a.obj, APPROACH)  # let go, back off along the axis
@@ -418,7 +419,7 @@ class SequenceGeometry:
             self.checker.set_objects(  # the objects where they stand are obstacles for the guided path
                 [replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held]
             )
-            if a.name == "take_knob":  # approached along the drawer's axis
+            if a.name == Kind.TAKE_KNOB:  # approached along the drawer's axis
                 q_pre = self._along_axis(q_k, a.obj, APPROACH)
                 if self.checker(q_pre):
                     return _NoLayout(f"no approach configuration {APPROACH:.2f} m out from {a}", tuple(phases))
@@ -435,16 +436,16 @@ class SequenceGeometry:
             standing = tuple(replace(object_box(o), T=before[o.name]) for o in self.scene.objects if o.name != held)
             guides.append(_Guide(len(phases), guided, dict(openings), standing, held, T_tool_obj))
             down = np.vstack([guided, np.array(up[-2::-1]).reshape(-1, self.model.nq), q_k[None]])
-            if a.name == "take_knob":
+            if a.name == Kind.TAKE_KNOB:
                 phases.append(Phase(down, None, knob=a.obj, action=k))
                 q_prev = q_k
                 continue
-            if a.name == "pick":
+            if a.name == Kind.PICK:
                 phases.append(Phase(down, None, grasp=a.obj, action=k))
                 held = a.obj
                 T_tool_obj = np.linalg.inv(self.model.fk(q_k, self.tool)) @ kf.object_poses[k][a.obj]
             else:
-                phases.append(Phase(down, held, release=a.obj, fall=a.name == "drop", action=k))
+                phases.append(Phase(down, held, release=a.obj, fall=a.name == Kind.DROP, action=k))
                 held, T_tool_obj = None, None
             phases.append(Phase(np.vstack([q_k[None], np.array(up)]), held))  # leave vertically
             q_prev = q_pre

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import DrawerView
 from rlgp_exec.reach.ik import ReachIK, base_circles
@@ -88,7 +89,7 @@ def attempt_guess(
         if z is None:  # else a random free base heading
             z = _ik_seed(ik, x, ik.guess(x, _free_heading(ik, x, rng, footprints_at[k])), footprints_at[k])
         a = actions[k]
-        if a.name == "pick" and objs[a.obj].shape != "cylinder":  # fingers across the faces away from neighbours
+        if a.name == Kind.PICK and objs[a.obj].shape != "cylinder":  # fingers across the faces away from neighbours
             z = face_roll(model, ik, z, poses[a.obj], [T[:3, 3] for m, T in poses.items() if m != a.obj])
         if attempt % 2 == 1:  # the grasp's roll: a quarter turn of the wrist on every other start
             z[-1] = np.clip(z[-1] + math.pi / 2 * rng.choice([-1.0, 1.0]), ik.lo[-1], ik.hi[-1])

@@ -41,7 +41,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN, Kind
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.margins import BASE_MARGIN, FEAS_TOL, PLACE_LIFT
@@ -149,7 +149,7 @@ def pinned_conflict(
     moved = {scene.start.held} if scene.start.held is not None else set()
     for a in actions:
         # an object moved earlier in the sequence is picked where that keyframe put it: not pinned yet
-        if a.name == "pick" and a.obj in objs and a.obj not in moved:
+        if a.name == Kind.PICK and a.obj in objs and a.obj not in moved:
             o = objs[a.obj]
             top = grasp_point(o.T, o.size)
             still = [object_box(objs[m]) for m in objs if m not in moved and m != a.obj]
@@ -185,11 +185,11 @@ def _tool_point(
     """Where action ``a`` puts the tool point (world (3,) [m]), GRASP_DEPTH below the top of the object it
     picks or sets down: exactly for a pick (the object where it stands, or as an earlier keyframe targeted
     it), over the target's centre for a place or stack; None for the other actions."""
-    if a.name not in ("pick", "place", "stack"):
+    if a.name not in (Kind.PICK, Kind.PLACE, Kind.STACK):
         return None
     o = objs[a.obj]
     down = np.array([0.0, 0.0, min(GRASP_DEPTH, o.size[2] / 2)])
-    if a.name == "pick":
+    if a.name == Kind.PICK:
         top = tops[a.obj] if a.obj in placed else poses[a.obj][:3, 3] + np.array([0.0, 0.0, o.size[2] / 2])
         return top - down
     if a.target is None:
@@ -262,14 +262,14 @@ def _site_disc(
     """Where action a's hand goes, as a disc in the world plane: (centre x y (2,), radius [m]); the
     object's footprint for a pick (or a stack onto it), the target rectangle for a place or drop, the knob
     for a drawer."""
-    if a.name == "pick":
+    if a.name == Kind.PICK:
         return poses[a.obj][:2, 3], float(np.hypot(*scene.object(a.obj).size[:2])) / 2
     if a.name in DRAWER_ACTIONS or a.target is None:
         return drawers[a.obj].T_world_knob(openings[a.obj])[:2, 3], 0.0
-    if a.name == "drop":
+    if a.name == Kind.DROP:
         T, half = drawers[a.target].drop_rect(max(openings[a.target], drawers[a.target].travel), 0.0)
         return T[:2, 3], float(np.hypot(*half))
-    if a.name == "stack" and a.target in poses:  # onto a movable: its footprint (where the scene put it)
+    if a.name == Kind.STACK and a.target in poses:  # onto a movable: its footprint (where the scene put it)
         return poses[a.target][:2, 3], float(np.hypot(*scene.object(a.target).size[:2])) / 2
     T, half, _ = target_surface(scene, a.target)
     return T[:2, 3], float(np.hypot(*half))
@@ -290,7 +290,7 @@ def _obstacles(a: Action, before: dict[str, FloatArray], after: dict[str, FloatA
     grasped, set down or dropped (in or round the open hand), where they stand before the action; for
     open/close_drawer, whose keyframe is the end of the motion, where they stand after it (what lies in
     the drawer moved with it)."""
-    if a.name in ("open_drawer", "close_drawer"):
+    if a.name in (Kind.OPEN_DRAWER, Kind.CLOSE_DRAWER):
         return dict(after)
     return {m: T for m, T in before.items() if not (a.name in MOVES_OBJECT and m == a.obj)}
 
@@ -450,10 +450,10 @@ def _build(
         row_keyframe += [k - 1] * (len(rows.g) - len(row_keyframe))
         couples.append(())
         rs = RobotSymbols(model, q_start, manipulator, Z[:, k], frames=(*self_rows.frames, *inner_rows.frames))
-        if a.name in ("open_drawer", "close_drawer"):
+        if a.name in (Kind.OPEN_DRAWER, Kind.CLOSE_DRAWER):
             if knob != a.obj:
                 raise RlgpError(f"keyframe NLP: {a} without holding the knob of {a.obj} (holding {knob})")
-            new = drawers[a.obj].travel if a.name == "open_drawer" else 0.0
+            new = drawers[a.obj].travel if a.name == Kind.OPEN_DRAWER else 0.0
             n0 = len(rows.g)
             follow_prismatic(Z[:, k], Z[:, k - 1], drawers[a.obj].axis_world, new - openings[a.obj], rows)
             couples[k] = (k - 1,)
@@ -465,7 +465,7 @@ def _build(
         drawer_bx = [b for c, v in drawers.items() if not (at_knob and c == a.obj) for b in v.boxes(openings[c])]
         n0 = len(rows.g)
         still_bx = [replace(b, T=poses[b.name]) for b in still]
-        own_hand = a.name == "pick" and bool(hand or mesh_hand)
+        own_hand = a.name == Kind.PICK and bool(hand or mesh_hand)
         tool_point = _tool_point(scene, a, objs, poses, placed, tops) if hand or mesh_hand else None
         tool_fixtures, tool_objects = fixture_bx, still_bx
         if tool_point is not None:  # the fingers, not the tool sphere, by the surface under a flat object
@@ -474,11 +474,11 @@ def _build(
                 tool_objects = _hand_objects(rs, still_bx, tool_point, rows)
         box_clear(rs, tool_fixtures + drawer_bx, rows, margin=ARM_MARGIN)
         skip = ((rs.manip.tool_frame,) + ((rs.manip.palm_frame,) if palm_hand else ())) if own_hand else ()
-        _objects_clear(rs, tool_objects, rows, HAND_MARGIN if a.name == "pick" else ARM_MARGIN, skip)
+        _objects_clear(rs, tool_objects, rows, HAND_MARGIN if a.name == Kind.PICK else ARM_MARGIN, skip)
         rows.add_all(self_rows.rows(rs), self_rows.lower, ca.inf)
         rows.add_all(inner_rows.rows(rs), inner_rows.lower, ca.inf)
         site, r_site = _site_disc(scene, a, poses, drawers, openings)
-        if a.name == "stack" and a.target in placed:  # the support stands where an earlier keyframe put it
+        if a.name == Kind.STACK and a.target in placed:  # the support stands where an earlier keyframe put it
             site, r_site = placed[a.target][1], placed[a.target][2]
         if own_hand and palm_hand:
             points_clear(rs.T_tool, list(palm_hand), _near_site(still_bx, site, r_site + FINGER_REACH), rows,
@@ -515,14 +515,14 @@ def _build(
         labels += [f"{a} base footprint"] * (len(rows.g) - n0)
         opening_at.append(dict(openings))
         n0 = len(rows.g)
-        if a.name == "take_knob":
+        if a.name == Kind.TAKE_KNOB:
             if held is not None or knob is not None:
                 raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
             T_knob = drawers[a.obj].T_world_knob(openings[a.obj])
             knob_grasp(rs, T_knob, rows)
             knob = a.obj
             targets.append(T_knob[:3, 3])
-        elif a.name == "pick":
+        elif a.name == Kind.PICK:
             if held is not None or knob is not None:
                 raise RlgpError(f"keyframe NLP: {a} while holding {held or knob}")
             o = objs[a.obj]
@@ -556,7 +556,7 @@ def _build(
             aux.append((P, expr, (k, *couples[k])))
             labels += [f"{a} pose"] * (len(rows.g) - n0)
             n0 = len(rows.g)
-            if a.name == "stack" and a.target in objs:  # on the support's top face, wherever it stands now
+            if a.name == Kind.STACK and a.target in objs:  # on the support's top face, wherever it stands now
                 b = objs[a.target]
                 T_below = placed[a.target][0] if a.target in placed else poses[a.target]
                 half_b = (max((b.size[0] - max(o.size[:2])) / 2, 0.0) + STACK_SLACK,
@@ -583,7 +583,7 @@ def _build(
                 targets.append(T_rect[:3, 3] + np.array([0.0, 0.0, rim - T_rect[2, 3] + DROP_LOW + o.size[2]]))
             r_o = float(np.hypot(o.size[0], o.size[1])) / 2
             for _, xy, r_other in set_down.get(a.target, []):  # apart from what was set down there already
-                gap = DROP_GAP if a.name == "drop" else PLACE_GAP
+                gap = DROP_GAP if a.name == Kind.DROP else PLACE_GAP
                 rows.add(ca.sumsqr(T_obj[:2, 3] - xy), (r_o + r_other + gap) ** 2, ca.inf)
             if a.name in SETS_DOWN and a.target not in objs and all(r.name != a.target for r in scene.regions):
                 # set down on a fixture's top at large: off the regions marked on it (goals' places, pegs)
@@ -729,7 +729,7 @@ def solve_keyframes(
                 raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.obj!r}; valid: {sorted(drawers)}")
         elif a.obj not in objs:
             raise RlgpError(f"keyframe NLP: unknown object {a.obj!r}; valid: {sorted(objs)}")
-        if a.name == "drop" and a.target not in drawers:
+        if a.name == Kind.DROP and a.target not in drawers:
             raise RlgpError(f"keyframe NLP: {a}: unknown drawer cabinet {a.target!r}; valid: {sorted(drawers)}")
     conflict = pinned_conflict(model, scene, actions, manipulator, hand, mesh_hand, max_tilt, palm_hand, tip_points)
     if conflict is not None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from rlgp_exec.planning.actions import RELEASES
+from rlgp_exec.planning.actions import RELEASES, Kind
 from rlgp_exec.planning.drawers import DrawerView
 from rlgp_exec.robot.model import FloatArray, RobotModel
 
@@ -42,15 +42,15 @@ def object_poses_after(
     before = {c: (openings0 or {}).get(c, 0.0) for c in drawers}
     for k, a in enumerate(actions):
         T_tool = model.fk(keyframes[k], tool)
-        if a.name == "pick":
+        if a.name == Kind.PICK:
             held_T = np.linalg.inv(T_tool) @ cur[a.obj]
         elif a.name in RELEASES and held_T is not None:
             cur[a.obj] = T_tool @ held_T
-            if a.name == "drop" and a.target is not None and sizes is not None:
+            if a.name == Kind.DROP and a.target is not None and sizes is not None:
                 v = drawers[a.target]
                 cur[a.obj][2, 3] = v.floor_z(openings[k][a.target]) + sizes[a.obj][2] / 2
             held_T = None
-        elif a.name in ("open_drawer", "close_drawer"):
+        elif a.name in (Kind.OPEN_DRAWER, Kind.CLOSE_DRAWER):
             v = drawers[a.obj]
             d0, d1 = before[a.obj], openings[k][a.obj]
             for name, T in cur.items():

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 from rlgp_exec.planning.symbolic.search import CostFn, Heuristic
 from rlgp_exec.scene.types import Scene
@@ -87,7 +88,7 @@ def distance_cost(scene: Scene, per_action: float = 1.0, per_metre: float = 1.0)
         here = start
         for a in prefix:
             here = site_of(a, where)
-            if a.name in ("place", "stack", "drop"):
+            if a.name in (Kind.PLACE, Kind.STACK, Kind.DROP):
                 where[a.args[1]] = where.get(a.args[2], here)
         there = site_of(action, where)
         return per_action + per_metre * math.dist(here, there)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.symbolic.model import GroundProblem, Operator
 
 __all__ = ["PUT_DOWN", "SURFACE_TYPES", "without_detours"]
@@ -44,7 +45,7 @@ def without_detours(problem: GroundProblem) -> GroundProblem:
         goal_support = target[a.args[1]]
         if a.name in PUT_DOWN:
             return a.args[2] != goal_support
-        return a.name == "pick" and a.args[2] == goal_support
+        return a.name == Kind.PICK and a.args[2] == goal_support
 
     kept = tuple(op for op in problem.operators if not detour(op))
     log.debug("%s: %d detour operators removed (%d kept)", problem.name, len(problem.operators) - len(kept), len(kept))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 
 __all__ = ["ONE_OBJECT", "Stacking", "supports"]
@@ -113,6 +114,6 @@ class Stacking:
         if goal is None or self.types.get(goal) not in ONE_OBJECT:
             return False
         placed = self.in_place(on)
-        if a.name == "pick":  # it was in place before: the pick changed nothing below it
+        if a.name == Kind.PICK:  # it was in place before: the pick changed nothing below it
             return s == goal and (s not in self.movable or placed.get(s, False))
         return s != goal and (o, goal) in self.put_downs and self.ready(goal, state, placed)
