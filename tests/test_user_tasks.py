@@ -48,3 +48,14 @@ def test_a_box_goes_onto_a_counter_whose_place_leaves_the_lift_its_least_rise():
     p = plan(load_scene(DATA / "box_counter_hsr.toml"), planner="rlgp", seed=0)
     _validated(p)
     assert p.actions == ("(pick box)", "(place box mat)")
+
+
+def test_a_target_beside_a_fixed_base_is_planned_by_rlgp_and_gnpp_says_its_base_stays():
+    """GNPP keeps the PR2's base at its start; the stool is within the arms' reach bound that ``refuse``
+    checks, so GNPP's search proves the task infeasible, and says why that may be."""
+    scene = load_scene(DATA / "cup_stool_pr2.toml")
+    g = plan(scene, planner="gnpp", seed=0)
+    assert not g.success
+    assert g.reason.startswith("infeasible") and "base stays at its start" in g.reason, g.reason
+    assert "rlgp drives the base" in g.reason
+    _validated(plan(scene, planner="rlgp", seed=0))
