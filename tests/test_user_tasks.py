@@ -59,3 +59,10 @@ def test_a_target_beside_a_fixed_base_is_planned_by_rlgp_and_gnpp_says_its_base_
     assert g.reason.startswith("infeasible") and "base stays at its start" in g.reason, g.reason
     assert "rlgp drives the base" in g.reason
     _validated(plan(scene, planner="rlgp", seed=0))
+
+
+def test_three_objects_of_two_shapes_go_onto_bins_on_a_desk_and_a_bench():
+    p = plan(load_scene(DATA / "mixed_three_hsr.toml"), planner="rlgp", seed=0)
+    _validated(p)
+    assert sorted(a for a in p.actions if a.startswith("(place")) == [
+        "(place brick bin_low)", "(place can bin_desk)", "(place glass bin_low)"]
