@@ -44,7 +44,7 @@ from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, KeyframeResult, sol
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.nlp.pick_fingers import palm_box_spheres
 from rlgp_exec.planning.plan import Level3Stats, Plan
-from rlgp_exec.planning.transport import APPROACH, Transport
+from rlgp_exec.planning.transport import APPROACH, MIN_RISE, Transport
 from rlgp_exec.planning.validate import Phase, Validation, validate_with_fallbacks
 from rlgp_exec.reach import ReachabilityPlanner, ReachIK, RGParams, WorldChecker, load_or_build, nominal_q
 from rlgp_exec.robot import load_robot
@@ -380,7 +380,8 @@ class SequenceGeometry:
             hand=self.hand,
             self_spheres=self.self_spheres,
             body=self.body,
-            lift_room=APPROACH,
+            lift_room=MIN_RISE,  # what the vertical leave needs at least (``Transport.above``): more would bar
+            # the places only a full lift reaches (a vertical hand on a 0.7 m desk: a cylinder cannot lean)
             seeds=self._graph_seeds,
             cache=cache,
             mesh_hand=self.mesh_hand,

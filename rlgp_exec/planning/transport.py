@@ -15,6 +15,7 @@ import numpy as np
 
 from rlgp_exec.planning.detour import Footprint, detour, rect_distance
 from rlgp_exec.planning.drawers import DrawerView
+from rlgp_exec.planning.nlp.keyframes import FEAS_TOL
 from rlgp_exec.reach import WorldChecker
 from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import base_circles
@@ -22,9 +23,10 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL
 
-__all__ = ["APPROACH", "Transport"]
+__all__ = ["APPROACH", "MIN_RISE", "Transport"]
 
 APPROACH = 0.12  # [m] the hand approaches and leaves each keyframe vertically over this distance
+MIN_RISE = APPROACH / 2  # [m] the shortest vertical approach ``Transport.above`` accepts (a tall support)
 DRIVE_ROUND_TIMEOUT = 2.0  # [s] OMPL's time for a base-only path round an obstacle (the last resort)
 RETREAT = 0.3  # [m] a transport variant backs the base off this far from the nearest fixture before driving
 DETOUR_MARGIN = 0.03  # [m] a detour keeps the base's enclosing circle this much further off the footprints
@@ -48,8 +50,8 @@ class Transport:
         self.tool = model.manipulator().tool_frame
 
     def above(self, q_k: FloatArray) -> list[FloatArray] | None:
-        """Lift APPROACH straight up from q_k, else half of it (a tall shelf may leave no more room)."""
-        for rise in (APPROACH, APPROACH / 2):
+        """Lift APPROACH straight up from q_k, else MIN_RISE (a tall shelf may leave no more room)."""
+        for rise in (APPROACH, MIN_RISE):
             chain = self._rise(q_k, rise)
             if chain is not None:
                 return chain
@@ -62,9 +64,10 @@ class Transport:
         for lift in ("arm_lift_joint", "torso_lift_joint"):
             if lift in self.model.joint_names:
                 i = self.model.index(lift)
-                if q_k[i] + rise <= self.model.limits.upper[i]:
+                top = float(self.model.limits.upper[i])
+                if q_k[i] + rise <= top + FEAS_TOL:  # a keyframe NLP's lift row holds to FEAS_TOL only
                     q = q_k.copy()
-                    q[i] += rise
+                    q[i] = min(q_k[i] + rise, top)
                     return None if self.checker(q) else [q]
         # differential IK on the arm: the tool rises along world z without turning (a held object keeps
         # its attitude), 1 cm per step, re-linearised at every step

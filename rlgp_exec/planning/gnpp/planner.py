@@ -263,6 +263,9 @@ def _plan(
                     if blocked_plans:  # not a proof: a whole plan is blocked after a solver, layout or replay failure
                         proof += f" or is one of {blocked_plans} plans blocked after failing, which proves nothing"
                     proof += ")"
+                    if not lib.mobile:  # the likeliest cause on a fixed base, which the reach bound let through
+                        proof += (f"; the {scene.robot.name}'s base stays at its start here, so a conflict may be an "
+                                  "object or target its arms cannot reach from there (rlgp drives the base)")
                     if wide:
                         proof += "; not picked, wider than the open gripper ({:.3f} m inside): {}".format(
                             2 * lib.finger_inner, ", ".join(f"{o} {w:.3f} m" for o, w in sorted(wide.items()))
