@@ -297,6 +297,35 @@ def _zenoh_config(args: argparse.Namespace) -> Path | None:
     return Path(args.zenoh_config) if args.zenoh_config else None
 
 
+_DAEMON_SETTINGS = ("robot", "backend", "scene", "endpoint", "listen", "namespace", "record_dir", "planner",
+                    "objects", "time_budget", "max_expansions", "zenoh_config")
+
+
+def _daemon_config_flags(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--config", metavar="TOML",
+        help="the daemon's settings as a TOML file (see docs/daemon.example.toml); options given override it",
+    )
+    # not given -> None, so that the file's value applies (defaults: DaemonConfig's)
+    s.set_defaults(robot=None, backend=None, namespace=None, planner=None, zenoh_config=None)
+
+
+def _daemon_settings(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` with --config's settings where an option was not given (bad ones: RlgpError, exit 2)."""
+    from dataclasses import replace
+
+    from rlgp_exec.executive.daemon_config import DaemonConfig, load_daemon_config
+
+    cfg = load_daemon_config(args.config) if args.config else DaemonConfig()
+    cfg = cfg.merged({k: getattr(args, k) for k in _DAEMON_SETTINGS})
+    if cfg.zenoh_config is None and os.environ.get("ZENOH_CONFIG"):
+        cfg = replace(cfg, zenoh_config=Path(os.environ["ZENOH_CONFIG"]))
+    if cfg.scene is None:
+        raise RlgpError("daemon: no scene: give --scene FILE, or scene = \"FILE\" in --config")
+    values = {k: str(v) if isinstance(v, Path) else v for k, v in vars(cfg).items()}
+    return argparse.Namespace(**{**vars(args), **values})
+
+
 def cmd_daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -305,6 +334,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
+    args = _daemon_settings(args)
     limits = _limits(args)
     scene = load_scene(args.scene)
     if scene.robot.name != args.robot:
@@ -650,7 +680,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("daemon", help="the on-robot execution daemon (goals over Zenoh queries)")
     s.add_argument("--robot", choices=["hsr", "pr2"], default="hsr")
     s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim")
-    s.add_argument("--scene", required=True, help="the robot's environment (fixtures, objects) as a scene file")
+    s.add_argument("--scene", help="the robot's environment (fixtures, objects) as a scene file")
     s.add_argument("--endpoint", help="zenoh backend: the robot's endpoint")
     s.add_argument(
         "--listen", help="where clients connect (goals, status); default tcp/127.0.0.1:7450, or the config's"
@@ -664,6 +694,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
     )
     _limit_flags(s)
+    _daemon_config_flags(s)
     s.set_defaults(func=cmd_daemon)
 
     s = sub.add_parser(
