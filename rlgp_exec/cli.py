@@ -259,7 +259,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         seed=args.seed,
         objects=args.objects,
         limits=_limits(args),
+        foxglove=args.foxglove,
     )
+    _print_live_view(args.foxglove)
     result, _ = run_task(scene, opts, args.goal)
     print(f"{scene.name}: {result.status.value}: {result.detail}")
     if result.actions:
@@ -556,9 +558,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if scene not in DEMO_SCENES:
         print(f"rlgp-exec demo: unknown scene {scene!r}; valid: {list(DEMO_SCENES)}", file=sys.stderr)
         return 2
-    report = run_demo(Path(args.out), seed=args.seed, scene_name=scene)
+    _print_live_view(args.foxglove)
+    report = run_demo(Path(args.out), seed=args.seed, scene_name=scene, foxglove=args.foxglove)
     print(report.text())
     return 0 if report.ok else 1
+
+
+def _foxglove_flag(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--foxglove", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+        help="serve the run live to Foxglove (robot, TF, scene, plan) on ws://127.0.0.1:PORT (default 8765)",
+    )
+
+
+def _print_live_view(port: int | None) -> None:
+    if port is not None:
+        print(f"live view: open Foxglove, connect to ws://127.0.0.1:{port}", flush=True)
 
 
 def _zenoh_config_flag(s: argparse.ArgumentParser) -> None:
@@ -609,6 +624,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--backend", choices=["sim", "zenoh", "can"], default="sim")
     s.add_argument("--perceive", action="store_true", help="(sim) initial object poses from AprilTag perception")
     s.add_argument("--record", help="write the run to this MCAP file")
+    _foxglove_flag(s)
     s.add_argument("--planner", default="rlgp")
     s.add_argument("--goal", action="append", help="a goal literal, e.g. '(on block tray)' (repeatable)")
     s.add_argument("--endpoint", help="zenoh: the robot's endpoint, e.g. tcp/127.0.0.1:7447")
@@ -734,6 +750,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out")
     s.add_argument("--scene", default=None, help="an HSR scene with tagged objects (default: the demo's)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
+    _foxglove_flag(s)
     s.set_defaults(func=cmd_demo)
     return ap
 

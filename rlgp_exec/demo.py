@@ -116,8 +116,9 @@ def _plot_base_path(recording: Path, out: Path) -> None:
     plt.close(fig)
 
 
-def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoReport:
-    """Run the dry run on a shipped HSR scene; files go to ``out``."""
+def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE, foxglove: int | None = None) -> DemoReport:
+    """Run the dry run on a shipped HSR scene; files go to ``out``; ``foxglove``: serve the execution live
+    to Foxglove on that port."""
     import cv2
 
     from rlgp_exec.scene import load_scene
@@ -210,7 +211,8 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE) -> DemoRepo
         rec = out / "demo.mcap"
         # by mocap: the camera source cannot yet see a drawer's opening or contents, nor find an object too
         # small to detect from the start base (sorting_hsr's block_green), and VERIFY then fails on it
-        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects="mocap")  # type: ignore[arg-type]
+        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects="mocap",  # type: ignore[arg-type]
+                          foxglove=foxglove)
         result, _ = run_task(state["perceived"], opts)  # type: ignore[arg-type]
         report.files.append(rec)
         state["recording"] = rec

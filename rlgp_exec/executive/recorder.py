@@ -33,14 +33,16 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from mcap.writer import CompressionType, Writer
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
-__all__ = ["CHANNELS", "MAX_RECORD", "SCHEMAS", "Recorder", "Recording", "RecordingError", "read_recording"]
+__all__ = [
+    "CHANNELS", "MAX_RECORD", "SCHEMAS", "RecordSink", "Recorder", "Recording", "RecordingError", "read_recording",
+]
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +85,14 @@ def _json_default(o: Any) -> Any:
     if hasattr(o, "value"):  # enums
         return o.value
     raise TypeError(f"cannot record {type(o).__name__}")
+
+
+class RecordSink(Protocol):
+    """What the executive records into: a :class:`Recorder`, a live view, both (``foxglove_live.Tee``)."""
+
+    on_error: Callable[[str], None] | None
+
+    def write(self, topic: str, data: dict[str, Any], t_wall: float | None = None) -> None: ...
 
 
 class _Spool:
