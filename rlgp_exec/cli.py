@@ -564,9 +564,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if report.ok else 1
 
 
+def _port(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (1..65535)")
+    return int(text)
+
+
 def _foxglove_flag(s: argparse.ArgumentParser) -> None:
     s.add_argument(
-        "--foxglove", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+        "--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
         help="serve the run live to Foxglove (robot, TF, scene, plan) on ws://127.0.0.1:PORT (default 8765)",
     )
 

@@ -164,3 +164,7 @@ def test_a_busy_port_is_refused_clearly_and_the_option_parses(live):
     assert parse(["run", "s.toml", "--foxglove"]).foxglove == 8765
     assert parse(["run", "s.toml", "--foxglove", "9000"]).foxglove == 9000
     assert parse(["run", "s.toml"]).foxglove is None and parse(["demo", "--foxglove"]).foxglove == 8765
+    for bad in ("0", "70000", "x"):
+        with pytest.raises(SystemExit) as e:
+            parse(["run", "s.toml", "--foxglove", bad])
+        assert e.value.code == 2
