@@ -154,6 +154,7 @@ class Recorder:
             )
             self._channels[topic] = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
         self._view = RosView() if viewer else None
+        self._view_lock = threading.Lock()
         self._view_failed: set[str] = set()  # topics whose records could not be derived (logged once)
         self._last_state_view = -math.inf  # [s] wall time of the last robot state derived
         if viewer:
@@ -183,13 +184,15 @@ class Recorder:
             raise RecordingError(f"recording {topic}: t_wall must be a wall time [s] >= 0, got {t!r}")
         t_ns = int(t * 1e9)
         payload = json.dumps(data, default=_json_default, allow_nan=True).encode()
+        with self._view_lock:  # not under the writer's lock: a plan's FK must not hold up the control loop's writes
+            viewer = self._derive(topic, data, t) if self._fd is not None else []
         reason = None
         with self._lock:
             if self._fd is None:
                 return  # closed or stopped: late messages from a stopping thread are dropped, never raised
             self._w.add_message(self._channels[topic], log_time=t_ns, data=payload, publish_time=t_ns)
             self.n_messages += 1
-            for channel, derived in self._derive(topic, data, t):
+            for channel, derived in viewer:
                 self._w.add_message(self._channels[channel], log_time=t_ns, data=derived, publish_time=t_ns)
             now = time.monotonic()
             if topic in _URGENT or now - self._last_flush >= FLUSH_S or len(self._spool.buf) >= SPOOL_MAX:
@@ -199,7 +202,7 @@ class Recorder:
             self._report(reason)
 
     def _derive(self, topic: str, data: dict[str, Any], t: float) -> list[tuple[str, bytes]]:
-        """The viewer's messages of a record (under the lock); a record they cannot be made of is logged
+        """The viewer's messages of a record (under ``_view_lock``); a record they cannot be made of is logged
         once per topic and the record itself kept (the executive's record is what a replay reads)."""
         if self._view is None:
             return []

@@ -3,8 +3,8 @@
 :class:`RosView` turns the executive's records (``/scene``, ``/robot_state``, ``/detections``,
 ``/plan``, as the recorder receives them) into the channels of :data:`ROS_CHANNELS`:
 
-- ``/robot_description`` (``std_msgs/String``, the URDF), ``/tf_static`` (fixed joints) and
-  ``/scene_entities`` (fixtures, drawers, regions, objects) with each ``/scene``;
+- ``/robot_description`` (``std_msgs/String``, the URDF) and ``/tf_static`` (fixed joints) with the
+  first ``/scene``, ``/scene_entities`` (fixtures, drawers, regions, objects) with each;
 - ``/joint_states``, ``/odom`` (the base in ``world``) and ``/tf`` (``world -> base`` and every moving
   joint's ``T_parent_child`` by FK) with each ``/robot_state``;
 - ``/tf`` (``world -> object``) with each ``/scene`` and ``/detections``, and the drawers' entities
@@ -98,15 +98,17 @@ class RosView:
 
     def _scene(self, data: Mapping[str, Any], t: float) -> list[tuple[str, bytes]]:
         scene = scene_from_dict(dict(data), "recorded scene")
-        if self.robot is None or self.robot.model.name != scene.robot.name:
+        out = []
+        if self.robot is None or self.robot.model.name != scene.robot.name:  # the robot: once
             self.robot = RobotTf(load_robot(scene.robot.name))
+            out += [("/robot_description", rm.string(self.robot.description)),
+                    ("/tf_static", rm.tf_message(t, self.robot.static_transforms()))]
         self.scene = scene
         robot = self.robot
         q = robot.model.home(scene.robot.base, scene.robot.joints)
         objects = [(rm.WORLD, o.name, o.T) for o in scene.objects]
         return [
-            ("/robot_description", rm.string(robot.description)),
-            ("/tf_static", rm.tf_message(t, robot.static_transforms(q))),
+            *out,
             ("/scene_entities", se.scene_update(t, scene, self.openings)),
             ("/tf", rm.tf_message(t, [*robot.transforms(q), *objects])),
         ]

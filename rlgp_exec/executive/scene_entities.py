@@ -25,7 +25,7 @@ __all__ = ["SCHEMA", "drawer_update", "plan_update", "scene_update"]
 
 SCHEMA = fm.SceneUpdate.get_schema()  # name foxglove.SceneUpdate, encoding protobuf
 PLAN_COLORS = ((0.1, 0.4, 1.0, 1.0), (1.0, 0.5, 0.0, 1.0), (0.0, 0.7, 0.3, 1.0))  # base, first and second arm
-MAX_PATH_POINTS = 2000  # a path drawn with more points is thinned to about this many
+MAX_PATH_POINTS = 500  # a path drawn with more points is thinned to about this many (each tool point: an FK)
 
 
 def _time(t: float) -> fm.Timestamp:
