@@ -432,6 +432,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         seed=args.seed,
         objects=args.objects,
         limits=_limits(args),
+        foxglove=args.foxglove,
     )
     record = opts.record
     if args.gui and record is None:  # the window plays the run back from its recording
@@ -439,6 +440,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         record = Path(tempfile.mkdtemp(prefix="rlgp-exec-gui-")) / "run.mcap"
         opts = dataclasses.replace(opts, record=record)
+    _print_live_view(args.foxglove)
     with progress.stage(f"running {scene.name} via {args.backend} (sense, plan, time, act, verify)"):
         result, _ = run_task(scene, opts, args.goal)
     say(f"{scene.name}: {result.status.value}: {result.detail}")
@@ -493,6 +495,35 @@ def _zenoh_config(args: argparse.Namespace) -> Path | None:
     return Path(args.zenoh_config) if args.zenoh_config else None
 
 
+_DAEMON_SETTINGS = ("robot", "backend", "scene", "endpoint", "listen", "namespace", "record_dir", "planner",
+                    "objects", "time_budget", "max_expansions", "zenoh_config")
+
+
+def _daemon_config_flags(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--config", metavar="TOML",
+        help="the daemon's settings as a TOML file (see docs/daemon.example.toml); options given override it",
+    )
+    # not given -> None, so that the file's value applies (defaults: DaemonConfig's)
+    s.set_defaults(robot=None, backend=None, namespace=None, planner=None, zenoh_config=None)
+
+
+def _daemon_settings(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` with --config's settings where an option was not given (bad ones: RlgpError, exit 2)."""
+    from dataclasses import replace
+
+    from rlgp_exec.executive.daemon_config import DaemonConfig, load_daemon_config
+
+    cfg = load_daemon_config(args.config) if args.config else DaemonConfig()
+    cfg = cfg.merged({k: getattr(args, k) for k in _DAEMON_SETTINGS})
+    if cfg.zenoh_config is None and os.environ.get("ZENOH_CONFIG"):
+        cfg = replace(cfg, zenoh_config=Path(os.environ["ZENOH_CONFIG"]))
+    if cfg.scene is None:
+        raise RlgpError("daemon: no scene: give --scene FILE, or scene = \"FILE\" in --config")
+    values = {k: str(v) if isinstance(v, Path) else v for k, v in vars(cfg).items()}
+    return argparse.Namespace(**{**vars(args), **values})
+
+
 def cmd_daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
@@ -501,6 +532,7 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
+    args = _daemon_settings(args)
     limits = _limits(args)
     scene = load_scene(_scene(args.scene))
     if scene.robot.name != args.robot:
@@ -772,7 +804,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from rlgp_exec import progress
 
     with progress.stage(f"demo on {scene.name} ({path}), files to {args.out}"):
-        report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path))
+        _print_live_view(args.foxglove)
+        report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path), foxglove=args.foxglove)
     say(report.text())
     if args.gui and (Path(args.out) / "demo.mcap").is_file():
         from rlgp_exec.gui import show_recording
@@ -830,6 +863,24 @@ def _planner_flag(s: argparse.ArgumentParser) -> None:
     s.add_argument("--planner", default="rlgp", choices=PLANNER_CHOICES, metavar="PLANNER",
                    help="the planner, one of: %(choices)s (rlgp: reachability-graph heuristic; lgp: distance-only "
                    "baseline; gnpp and its ablations)")
+
+
+def _port(text: str) -> int:
+    if not text.isdigit() or not 1 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (1..65535)")
+    return int(text)
+
+
+def _foxglove_flag(s: argparse.ArgumentParser) -> None:
+    s.add_argument(
+        "--foxglove", nargs="?", type=_port, const=8765, default=None, metavar="PORT",
+        help="serve the run live to Foxglove (robot, TF, scene, plan) on ws://127.0.0.1:PORT (default 8765)",
+    )
+
+
+def _print_live_view(port: int | None) -> None:
+    if port is not None:
+        print(f"live view: open Foxglove, connect to ws://127.0.0.1:{port}", flush=True)
 
 
 def _zenoh_config_flag(s: argparse.ArgumentParser) -> None:
@@ -912,6 +963,7 @@ def build_parser() -> argparse.ArgumentParser:
     _objects_flag(s)
     _json_flag(s, "the run's result")
     _gui_flag(s, "the run (from its recording, once it ends)")
+    _foxglove_flag(s)
     _limit_flags(s)
     s.set_defaults(func=cmd_run)
 
@@ -993,7 +1045,8 @@ def build_parser() -> argparse.ArgumentParser:
     """)
     s.add_argument("--robot", choices=["hsr", "pr2"], default="hsr", help="the robot (must match the scene's)")
     s.add_argument("--backend", choices=["zenoh", "can", "sim"], default="sim", help="the HAL backend")
-    s.add_argument("--scene", required=True, help="the robot's environment (fixtures, objects): " + SCENE_HELP)
+    s.add_argument("--scene", help="the robot's environment (fixtures, objects): " + SCENE_HELP +
+                   " (or scene = \"FILE\" in --config)")
     s.add_argument("--endpoint", help="zenoh backend: the robot's endpoint")
     s.add_argument(
         "--listen", help="where clients connect (goals, status); default tcp/127.0.0.1:7450, or the config's"
@@ -1005,6 +1058,7 @@ def build_parser() -> argparse.ArgumentParser:
     _zenoh_config_flag(s)
     _objects_flag(s)
     _limit_flags(s)
+    _daemon_config_flags(s)
     s.set_defaults(func=cmd_daemon)
 
     s = _command(sub, "request",
@@ -1068,6 +1122,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="an HSR scene with tagged objects: a file or a shipped name (default: table_clearing_hsr)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
     _gui_flag(s, "the demo's recorded run (once it ends)")
+    _foxglove_flag(s)
     s.set_defaults(func=cmd_demo)
     return ap
 

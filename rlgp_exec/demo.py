@@ -123,10 +123,12 @@ def _plot_base_path(recording: Path, out: Path) -> None:
     plt.close(fig)
 
 
-def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE, objects: str = DEMO_OBJECTS) -> DemoReport:
+def run_demo(
+    out: Path, seed: int = 0, scene_name: str = DEMO_SCENE, objects: str = DEMO_OBJECTS, foxglove: int | None = None
+) -> DemoReport:
     """Run the dry run on an HSR scene with tagged objects (a shipped scene's name or a scene file, as
     ``scene.shipped.resolve_scene`` reads it); files go to ``out``; ``objects``: the executive's object
-    source ("mocap" or "camera")."""
+    source ("mocap" or "camera"); ``foxglove``: serve the execution live to Foxglove on that port."""
     if objects not in ("mocap", "camera"):
         raise RlgpError(f"demo objects {objects!r}: valid: ['mocap', 'camera']")
     import cv2
@@ -221,7 +223,8 @@ def run_demo(out: Path, seed: int = 0, scene_name: str = DEMO_SCENE, objects: st
         from rlgp_exec.executive.runner import RunOptions, run_task
 
         rec = out / "demo.mcap"
-        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects=objects)  # type: ignore[arg-type]
+        opts = RunOptions(backend="zenoh", endpoint=state["endpoint"], record=rec, seed=seed, objects=objects,  # type: ignore[arg-type]
+                          foxglove=foxglove)
         result, ex = run_task(state["perceived"], opts)  # type: ignore[arg-type]
         report.files.append(rec)
         state["recording"] = rec

@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import json
+import os
 import subprocess
 import sys
 import time
@@ -268,3 +269,43 @@ def _wait(pred, timeout: float) -> bool:
             return True
         time.sleep(0.02)
     return False
+
+
+def test_a_daemon_started_from_a_config_file_serves_over_mutual_tls_only(pki, tmp_path):
+    """``rlgp-exec daemon --config``: the file names the scene, the TLS listen endpoint and the Zenoh
+    configuration (relative to the file); its certificates and access control then apply as above."""
+    ep = _tls(free_endpoint())
+    (tmp_path / "conf").mkdir()
+    (tmp_path / "conf" / "session.json5").write_text(pki["daemon"].read_text())
+    cfg = tmp_path / "conf" / "daemon.toml"
+    cfg.write_text(f'robot = "hsr"\nbackend = "sim"\nscene = "{SCENE}"\nlisten = "{ep}"\n'
+                   'zenoh_config = "session.json5"\nrecord_dir = "../recordings"\n')
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "rlgp_exec", "daemon", "--config", str(cfg)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "ZENOH_CONFIG": ""},
+    )
+    try:
+        line = daemon.stdout.readline() if daemon.stdout else ""
+        if "daemon ready" not in line:
+            daemon.kill()
+            pytest.fail(f"the daemon did not start: {line} {daemon.communicate()[1]}")
+        assert f"on {ep}" in line, line
+
+        def ask(who: str, what: str, timeout_s: float = 5.0) -> dict:
+            return request(ep, what, None, timeout_s=timeout_s, zenoh_config=pki[who])
+
+        assert ask("operator", "status")["state"] == "idle"
+        for who in ("rogue", "rogue_cert", "no_cert"):  # no valid certificate: nothing
+            r = ask(who, "status", timeout_s=DENIED_S)
+            assert not r["ok"] and "no daemon answered" in r["error"], (who, r)
+        assert ask("viewer", "status")["state"] == "idle"
+        r = ask("viewer", "estop", timeout_s=DENIED_S)  # a key expression its rules deny
+        assert not r["ok"] and "no daemon answered" in r["error"], r
+        assert ask("operator", "status")["state"] == "idle"  # the denied e-stop did not reach it
+        assert ask("operator", "estop")["ok"] and ask("viewer", "status")["state"] == "estopped"
+        plain = request(ep.replace("tls/", "tcp/", 1), "status", timeout_s=DENIED_S)
+        assert "no daemon answered" in plain["error"], plain
+    finally:
+        daemon.terminate()
+        _, err = daemon.communicate(timeout=30)
+    assert daemon.returncode == 0, err[-2000:]

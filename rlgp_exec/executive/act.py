@@ -28,7 +28,7 @@ from rlgp_exec.executive.monitors import (
     check_start_state,
     check_tracking,
 )
-from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.recorder import RecordSink
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import GripperCommand, Lifecycle, RobotState
 from rlgp_exec.planning.validate import Phase
@@ -117,7 +117,7 @@ class Actor:
         self,
         hal: RobotInterface,
         signals: Signals,
-        recorder: Recorder | None = None,
+        recorder: RecordSink | None = None,
         period: float = 0.01,
         tolerances: Tolerances | None = None,
         on_first_motion: Callable[[], None] | None = None,

@@ -20,7 +20,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.executive.act import Actor, ActOutcome, ActStatus, Signals, gripper_action
 from rlgp_exec.executive.monitors import Reaction, Tolerances, Violation
-from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.recorder import RecordSink
 from rlgp_exec.executive.recovery import release_knob
 from rlgp_exec.executive.states import LATCHED, ExecState, IllegalTransitionError, StateMachine, Transition
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
@@ -105,7 +105,7 @@ class Executive:
         objects: ObjectSource,
         *,
         planner: str = "rlgp",
-        recorder: Recorder | None = None,
+        recorder: RecordSink | None = None,
         period: float = 0.01,
         tolerances: Tolerances | None = None,
         max_replans: int = 3,
@@ -128,7 +128,7 @@ class Executive:
         self.signals = Signals()
         self.sm = StateMachine()
         self.sm.listeners.append(self._record_transition)
-        self.recorder: Recorder | None = None
+        self.recorder: RecordSink | None = None
         self.recording_error: str | None = None  # why the last recording stopped early
         #: called (from the thread that was writing) when a recording stops on a write error
         self.on_recording_error: Callable[[str], None] | None = None
@@ -192,7 +192,7 @@ class Executive:
         self.sm.to(S.ESTOPPED, why)
 
     # ------------------------------------------------------------------ recording
-    def attach(self, recorder: Recorder | None) -> None:
+    def attach(self, recorder: RecordSink | None) -> None:
         """Record from now on into ``recorder`` (None: stop recording; the caller closes it). A write error
         stops that recording, never the task: it is logged, kept in ``recording_error``, handed to
         ``on_recording_error`` and said in the task's result."""

@@ -1,9 +1,12 @@
 """Recordings: every run of the executive written to an MCAP file as it happens.
 
-Channels (JSON messages with JSON-schema schemas, so Foxglove and the ``mcap`` CLI read them):
-``/scene`` (the world model as scene-file data), ``/robot_state``, ``/command`` (setpoints and base
-twists sent), ``/plan``, ``/transitions`` (the state machine), ``/detections``, ``/events`` (monitor
-violations, results).
+The executive's records (JSON messages, one JSON schema each): ``/scene`` (the world model as
+scene-file data), ``/robot_state``, ``/command`` (setpoints and base twists sent), ``/plan``,
+``/transitions`` (the state machine), ``/detections``, ``/events`` (monitor violations, results).
+Beside them, what a viewer reads (:mod:`~rlgp_exec.executive.ros_record`): ROS 2 channels (``ros2msg``
+schemas, CDR) - ``/robot_description``, ``/tf``, ``/tf_static``, ``/joint_states``, ``/odom`` - and
+Foxglove scene entities (``/scene_entities``, ``/plan_path``), so Foxglove opens a recording as a robot
+in its world. Each is written with the record it comes from, at its time.
 
 Messages are written unchunked and reach the file at least every ``FLUSH_S`` and after every transition,
 plan and event, so a killed process leaves a file that :func:`read_recording` reads up to the last
@@ -26,16 +29,20 @@ import os
 import struct
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from types import MappingProxyType
+from typing import IO, Any, Protocol
 
 from mcap.writer import CompressionType, Writer
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
-__all__ = ["CHANNELS", "MAX_RECORD", "Recorder", "Recording", "RecordingError", "read_recording"]
+__all__ = [
+    "CHANNELS", "MAX_RECORD", "SCHEMAS", "RecordSink", "Recorder", "Recording", "RecordingError", "read_recording",
+]
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +51,20 @@ SPOOL_MAX = 1 << 16  # [bytes] held before a write reaches the file regardless o
 MAX_RECORD = 64 << 20  # [bytes] a record of a recording is at most this (a plan's message: ~100 kB)
 CHANNELS = ("/scene", "/robot_state", "/command", "/plan", "/transitions", "/detections", "/events")
 _URGENT = {"/scene", "/plan", "/transitions", "/events"}
+STATE_VIEW_S = 0.02  # [s] robot states closer than this to the last one derive no viewer messages (50 Hz)
+
+#: each record's JSON schema (what a JSON viewer shows as its fields)
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "/scene": {"description": "the world model as scene-file data",
+               "required": ["scene", "robot", "fixture", "object"]},
+    "/robot_state": {"description": "measured joints [rad, m] and odometry (x, y [m], yaw [rad]) at stamp [s]",
+                     "required": ["stamp", "names", "q", "dq", "base"]},
+    "/command": {"description": "setpoints and base twist sent to the robot", "required": ["names", "q", "dq"]},
+    "/plan": {"description": "the plan's summary and its phases' joint paths (n, nq)", "required": ["phases"]},
+    "/transitions": {"description": "a state machine transition", "required": ["to"]},
+    "/detections": {"description": "sensed poses (4x4, world frame) by object or frame", "required": ["poses"]},
+    "/events": {"description": "monitor violations, plan failures and task results", "required": ["kind"]},
+}
 MAGIC = b"\x89MCAP0\r\n"
 
 _HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _DATA_END = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F
@@ -64,6 +85,14 @@ def _json_default(o: Any) -> Any:
     if hasattr(o, "value"):  # enums
         return o.value
     raise TypeError(f"cannot record {type(o).__name__}")
+
+
+class RecordSink(Protocol):
+    """What the executive records into: a :class:`Recorder`, a live view, both (``foxglove_live.Tee``)."""
+
+    on_error: Callable[[str], None] | None
+
+    def write(self, topic: str, data: dict[str, Any], t_wall: float | None = None) -> None: ...
 
 
 class _Spool:
@@ -94,8 +123,13 @@ class Recorder:
     """
 
     def __init__(
-        self, path: str | Path, profile: str = "rlgp-exec", on_error: Callable[[str], None] | None = None
+        self,
+        path: str | Path,
+        profile: str = "rlgp-exec",
+        on_error: Callable[[str], None] | None = None,
+        viewer: bool = True,
     ) -> None:
+        """``viewer``: also write the ROS 2 and scene-entity channels (module docstring)."""
         self.path = Path(path)
         self.on_error = on_error
         self.error: str | None = None  # why the recording stopped early (None: it did not)
@@ -116,9 +150,21 @@ class Recorder:
             sid = self._w.register_schema(
                 name=f"rlgp_exec{topic.replace('/', '.')}",
                 encoding="jsonschema",
-                data=json.dumps({"type": "object", "title": topic}).encode(),
+                data=json.dumps({"type": "object", "title": topic, **SCHEMAS[topic]}).encode(),
             )
             self._channels[topic] = self._w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self._view = RosView() if viewer else None
+        self._view_lock = threading.Lock()
+        self._view_failed: set[str] = set()  # topics whose records could not be derived (logged once)
+        self._last_state_view = -math.inf  # [s] wall time of the last robot state derived
+        if viewer:
+            schema_ids: dict[bytes, int] = {}
+            for ch in ROS_CHANNELS.values():
+                if ch.schema_data not in schema_ids:
+                    schema_ids[ch.schema_data] = self._w.register_schema(
+                        name=ch.schema_name, encoding=ch.schema_encoding, data=ch.schema_data)
+                self._channels[ch.topic] = self._w.register_channel(
+                    topic=ch.topic, message_encoding=ch.message_encoding, schema_id=schema_ids[ch.schema_data])
         self._last_flush = time.monotonic()
         with self._lock:
             if self._flush() is not None:  # the file cannot take its first bytes: nothing to record into
@@ -131,25 +177,47 @@ class Recorder:
 
     def write(self, topic: str, data: dict[str, Any], t_wall: float | None = None) -> None:
         """Record ``data`` on ``topic`` (one of CHANNELS) at wall time ``t_wall`` [s] (now by default)."""
-        if topic not in self._channels:
+        if topic not in CHANNELS:
             raise RecordingError(f"unknown recording channel {topic!r}; valid: {list(CHANNELS)}")
         t = time.time() if t_wall is None else t_wall
         if not (math.isfinite(t) and 0.0 <= t < 1.8e10):
             raise RecordingError(f"recording {topic}: t_wall must be a wall time [s] >= 0, got {t!r}")
         t_ns = int(t * 1e9)
         payload = json.dumps(data, default=_json_default, allow_nan=True).encode()
+        with self._view_lock:  # not under the writer's lock: a plan's FK must not hold up the control loop's writes
+            viewer = self._derive(topic, data, t) if self._fd is not None else []
         reason = None
         with self._lock:
             if self._fd is None:
                 return  # closed or stopped: late messages from a stopping thread are dropped, never raised
             self._w.add_message(self._channels[topic], log_time=t_ns, data=payload, publish_time=t_ns)
             self.n_messages += 1
+            for channel, derived in viewer:
+                self._w.add_message(self._channels[channel], log_time=t_ns, data=derived, publish_time=t_ns)
             now = time.monotonic()
             if topic in _URGENT or now - self._last_flush >= FLUSH_S or len(self._spool.buf) >= SPOOL_MAX:
                 self._last_flush = now
                 reason = self._flush()
         if reason is not None:
             self._report(reason)
+
+    def _derive(self, topic: str, data: dict[str, Any], t: float) -> list[tuple[str, bytes]]:
+        """The viewer's messages of a record (under ``_view_lock``); a record they cannot be made of is logged
+        once per topic and the record itself kept (the executive's record is what a replay reads)."""
+        if self._view is None:
+            return []
+        if topic == "/robot_state":
+            if t - self._last_state_view < STATE_VIEW_S:
+                return []
+            self._last_state_view = t
+        try:
+            return self._view.derive(topic, data, t)
+        except Exception as e:  # a record the viewer cannot draw must not stop the recording, nor the task
+            if topic not in self._view_failed:
+                self._view_failed.add(topic)
+                log.warning("recording %s: no viewer messages for a %s record: %s: %s",
+                            self.path, topic, type(e).__name__, e)
+            return []
 
     def _flush(self) -> str | None:
         """Write the spool to the file (under the lock); on an OSError stop and return the reason."""
@@ -231,6 +299,8 @@ class Recording:
     truncated_at: int | None = None  # unfinished: the offset [bytes] where reading stopped
     size: int = 0  # [bytes]
     offsets: tuple[int, ...] = ()  # each message's record offset [bytes], to name it in errors
+    #: messages on each viewer channel (ROS 2, scene entities): written for viewers, not replayed
+    derived: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
 
     def topic(self, name: str) -> list[tuple[float, dict[str, Any]]]:
         return [(t, d) for tp, t, d in self.messages if tp == name]
@@ -304,6 +374,7 @@ class _Reader:
         self.channels: dict[int, tuple[str, str, int]] = {}  # id: (topic, message encoding, schema id)
         self.messages: list[tuple[str, float, dict[str, Any]]] = []
         self.offsets: list[int] = []
+        self.derived: dict[str, int] = {}
         self.data_end = False
 
     def _error(self, off: int, op: int, msg: str) -> RecordingError:
@@ -312,7 +383,8 @@ class _Reader:
 
     def _done(self, complete: bool, truncated_at: int | None) -> Recording:
         rec = Recording(
-            self.path, tuple(self.messages), complete, truncated_at, self.size, tuple(self.offsets)
+            self.path, tuple(self.messages), complete, truncated_at, self.size, tuple(self.offsets),
+            MappingProxyType(dict(sorted(self.derived.items()))),
         )
         if not complete:
             log.warning("recording %s is %s: read %d messages", self.path, rec.ending, len(self.messages))
@@ -394,10 +466,13 @@ class _Reader:
             raise _MalformedError(
                 f"channel {cid} ({topic}) refers to schema {schema_id}, which no Schema record before it declares"
             )
-        if topic not in CHANNELS:
-            raise _MalformedError(f"channel {cid}: topic {topic!r} is not a recording channel {list(CHANNELS)}")
-        if encoding != "json":
-            raise _MalformedError(f"channel {cid} ({topic}): message encoding {encoding!r}, expected 'json'")
+        if topic not in CHANNELS and topic not in ROS_CHANNELS:
+            raise _MalformedError(
+                f"channel {cid}: topic {topic!r} is not a recording channel {[*CHANNELS, *ROS_CHANNELS]}"
+            )
+        expected = "json" if topic in CHANNELS else ROS_CHANNELS[topic].message_encoding
+        if encoding != expected:
+            raise _MalformedError(f"channel {cid} ({topic}): message encoding {encoding!r}, expected {expected!r}")
         if self.channels.setdefault(cid, (topic, encoding, schema_id)) != (topic, encoding, schema_id):
             raise _MalformedError(f"channel {cid} declared again as {topic!r}, first as {self.channels[cid][0]!r}")
 
@@ -409,6 +484,9 @@ class _Reader:
         topic = self.channels[cid][0]
         if self.data_end:
             raise _MalformedError(f"({topic}) after the DataEnd record: messages belong in the data section")
+        if topic in ROS_CHANNELS:  # a viewer's message: counted, not replayed (the records hold it all)
+            self.derived[topic] = self.derived.get(topic, 0) + 1
+            return
         try:
             msg = json.loads(data)
         except (ValueError, RecursionError) as e:  # RecursionError: nested deeper than the parser goes

@@ -22,7 +22,7 @@ from typing import Any
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.executive import Executive, TaskResult
-from rlgp_exec.executive.recorder import Recorder
+from rlgp_exec.executive.recorder import Recorder, RecordSink
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
 from rlgp_exec.hal import make_backend
 from rlgp_exec.hal.interface import RobotInterface
@@ -51,6 +51,7 @@ class RunOptions:
     seed: int = 0
     objects: str | None = None  # one of OBJECT_SOURCES; None: the backend's default
     limits: PlanLimits = DEFAULT_LIMITS  # the planner's CPU-time budget and search expansions, every plan
+    foxglove: int | None = None  # serve the run live to Foxglove on this port (None: not)
 
 
 def object_source_name(opts: RunOptions) -> str:
@@ -112,10 +113,22 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
         raise
 
 
+def _with_live_view(stack: ExitStack, recorder: Recorder | None, port: int | None) -> RecordSink | None:
+    """The recorder, and the Foxglove live view on ``port`` if one is asked for (closed with ``stack``)."""
+    if port is None:
+        return recorder
+    from rlgp_exec.executive.foxglove_live import FoxgloveLive, Tee
+
+    live = stack.enter_context(FoxgloveLive(port))
+    log.info("live view: connect Foxglove to %s", live.url)
+    return live if recorder is None else Tee(recorder, live)
+
+
 def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> tuple[TaskResult, Executive]:
     """Connect, run the scene's task (or ``goal``), bring the robot to rest and disconnect."""
     with ExitStack() as stack:
         recorder = stack.enter_context(Recorder(opts.record)) if opts.record else None
+        sink = _with_live_view(stack, recorder, opts.foxglove)
         hal, objects = connect(scene, opts)
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
@@ -123,7 +136,7 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
                 time.sleep(0.05)
-        ex = Executive(hal, scene, objects, planner=opts.planner, recorder=recorder, seed=opts.seed,
+        ex = Executive(hal, scene, objects, planner=opts.planner, recorder=sink, seed=opts.seed,
                       limits=opts.limits)
         return ex.run(goal), ex
     raise AssertionError("unreachable")
