@@ -532,6 +532,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
 
+    if args.scene:  # a shipped name or a file, before the config's (file-relative) paths apply
+        args.scene = str(_scene(args.scene))
     args = _daemon_settings(args)
     limits = _limits(args)
     scene = load_scene(_scene(args.scene))

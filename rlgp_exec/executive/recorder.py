@@ -51,7 +51,7 @@ SPOOL_MAX = 1 << 16  # [bytes] held before a write reaches the file regardless o
 MAX_RECORD = 64 << 20  # [bytes] a record of a recording is at most this (a plan's message: ~100 kB)
 CHANNELS = ("/scene", "/robot_state", "/command", "/plan", "/transitions", "/detections", "/events")
 _URGENT = {"/scene", "/plan", "/transitions", "/events"}
-STATE_VIEW_S = 0.02  # [s] robot states closer than this to the last one derive no viewer messages (50 Hz)
+STATE_VIEW_S = 0.02  # [s] robot states closer than this (stamps) to the last one derive no viewer messages
 
 #: each record's JSON schema (what a JSON viewer shows as its fields)
 SCHEMAS: dict[str, dict[str, Any]] = {
@@ -206,10 +206,12 @@ class Recorder:
         once per topic and the record itself kept (the executive's record is what a replay reads)."""
         if self._view is None:
             return []
-        if topic == "/robot_state":
-            if t - self._last_state_view < STATE_VIEW_S:
+        if topic == "/robot_state":  # thinned on the robot's clock: a lock-step simulation runs faster than the wall's
+            stamp = data.get("stamp")
+            ts = float(stamp) if isinstance(stamp, int | float) else t
+            if abs(ts - self._last_state_view) < STATE_VIEW_S:
                 return []
-            self._last_state_view = t
+            self._last_state_view = ts
         try:
             return self._view.derive(topic, data, t)
         except Exception as e:  # a record the viewer cannot draw must not stop the recording, nor the task
