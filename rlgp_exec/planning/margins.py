@@ -11,4 +11,4 @@ FEAS_TOL = 1e-4
 #: reachability graph's IK does): room for the base controller's tracking error
 BASE_MARGIN = 0.02
 #: [m] an object is released this far above its support, so the placed pose is not in contact at release
-PLACE_LIFT = 0.005
+PLACE_LIFT = 0.003
