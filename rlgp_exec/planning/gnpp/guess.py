@@ -48,7 +48,7 @@ class TopIK:
 
     def __init__(self, lib: FactorLib) -> None:
         self.lib = lib
-        self._solvers: dict[tuple[str, ...], tuple] = {}
+        self._solvers: dict[str | tuple[str, ...], tuple] = {}  # by arm (and ColFix key, ``_solver``)
         self._memo: dict[tuple, tuple[bool, FloatArray]] = {}
         #: points a fixed-base arm reached from none of the starts: asked again with another reference
         #: posture, only that posture is tried (the other starts are the same whatever the reference);
@@ -61,7 +61,7 @@ class TopIK:
     def _solver(self, arm: str, col_key: tuple[str, ...] | None = None):
         """The IK's solver for ``arm`` with the ``ColFix`` factor ``col_key`` (default: the fixtures alone;
         a drawer tag: the drawers at their openings too, ``drawer_pntc.colfix``)."""
-        key = (arm, *(col_key or ()))
+        key: str | tuple[str, ...] = arm if col_key is None else (arm, *col_key)
         if key not in self._solvers:
             man = self.lib.model.manipulator(arm)
             n = len(self.lib.arm_index(arm))
