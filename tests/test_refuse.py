@@ -69,12 +69,25 @@ def test_the_table_matches_what_the_planners_realise():
     assert CAPABILITIES["gnpp_trn"].actions == frozenset(GEOMETRIC) - frozenset(MOVES)
 
 
-def test_gnpp_refuses_a_drawer_task_naming_what_is_missing_and_who_has_it():
+def test_a_drawer_task_is_accepted_by_both_planners():
     scene = load_scene(SCENES / "table_clearing_hsr.toml")
-    assert {"drop", "take_knob", "open_drawer"} <= set(needed_actions(scene))
+    assert {"drop", "take_knob", "open_drawer"} <= set(needed_actions(scene))  # it starts closed
+    for planner in ("rlgp", "gnpp_trn", "gnpp_trng"):
+        assert {"drop", "take_knob", "open_drawer", "close_drawer"} <= CAPABILITIES[planner].actions
+        refuse(scene, planner)
+
+
+def test_a_drawer_kind_missing_from_gnpp_is_refused_naming_it_and_who_has_it(monkeypatch):
+    """With the drawer kinds taken out of GNPP's entry, table clearing is refused at once, naming R-LGP."""
+    from rlgp_exec.planning import capabilities
+
+    gnpp = CAPABILITIES["gnpp_trn"]
+    without = gnpp._replace(actions=gnpp.actions - {"drop", "take_knob", "open_drawer", "close_drawer"})
+    for name, cap in CAPABILITIES.items():
+        if cap is gnpp:  # every GNPP variant shares the entry
+            monkeypatch.setitem(capabilities.CAPABILITIES, name, without)
     with pytest.raises(TaskRefusedError, match=r"gnpp_trn: no drawer actions .*use --planner rlgp"):
-        refuse(scene, "gnpp_trn")
-    refuse(scene, "rlgp")
+        refuse(load_scene(SCENES / "table_clearing_hsr.toml"), "gnpp_trn")
 
 
 @pytest.mark.parametrize("name", ["tower_pr2", "hanoi_pr2"])
@@ -218,7 +231,7 @@ def test_gnpp_too_wide_does_not_call_a_narrow_object_wider():
 def test_cli_plan_exits_2_with_the_refusal():
     from rlgp_exec.cli import main
 
-    assert main(["plan", str(SCENES / "table_clearing_hsr.toml"), "--planner", "gnpp"]) == 2
+    assert main(["plan", str(SCENES / "sorting_pr2.toml"), "--planner", "gnpp"]) == 2
 
 
 _RSS_CHILD = """
@@ -299,8 +312,8 @@ def test_memory_stays_bounded_on_fifty_objects():
 
 def test_a_refusal_is_a_scene_error_naming_the_file_and_the_table():
     with pytest.raises(SceneError) as e:
-        refuse(load_scene(SCENES / "table_clearing_hsr.toml"), "gnpp_trn")
-    assert (e.value.source, e.value.where) == ("table_clearing_hsr.toml", "[goal]")
-    assert e.value.detail.startswith("gnpp_trn: no drawer actions")
+        refuse(load_scene(SCENES / "sorting_pr2.toml"), "gnpp_trn")
+    assert (e.value.source, e.value.where) == ("sorting_pr2.toml", "[robot].base")
+    assert e.value.detail.startswith("gnpp_trn: keeps the pr2's base at its start")
     with pytest.raises(RlgpError, match="no capability entry for planner 'nope'; valid: "):
         refuse(load_scene(SCENES / "tower_pr2.toml"), "nope")

@@ -58,7 +58,8 @@ class Capability(NamedTuple):
 
 
 _RLGP = Capability(frozenset(GEOMETRIC_ACTIONS), _ROBOTS, "rlgp")  # R-LGP's layers read planning.actions
-_GNPP = Capability(frozenset({"pick", "place", "stack"}), _ROBOTS, "gnpp")
+_GNPP = Capability(frozenset({"pick", "place", "stack", "take_knob", "open_drawer", "close_drawer", "drop"}),
+                   _ROBOTS, "gnpp")
 
 #: planner name -> what it can express; GNPP's variants share one entry
 CAPABILITIES: dict[str, Capability] = {

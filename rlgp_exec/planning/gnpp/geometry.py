@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -30,6 +31,7 @@ import pybullet as p
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.capabilities import beyond_reach
+from rlgp_exec.planning.gnpp.drawer_geometry import DROP_MARGIN, DrawerFactors
 from rlgp_exec.planning.gripper_limits import gripper_limits
 from rlgp_exec.planning.margins import BASE_MARGIN, PLACE_LIFT
 from rlgp_exec.planning.nlp.action import target_surface
@@ -145,9 +147,10 @@ _W = ca.SX.sym("w", 4)
 _YAW_POSE = ca.Function("yaw_pose", [_W], [yaw_pose(_W)])
 
 
-class FactorLib:
+class FactorLib(DrawerFactors):
     """The scene's factor functions and variable bounds (the base part of each arm's variable when it
-    moves, see ``mobile``; else fixed at the start, as the torso always is)."""
+    moves, see ``mobile``; else fixed at the start, as the torso always is); the drawers' from
+    ``DrawerFactors``."""
 
     def __init__(self, model: RobotModel, scene: Scene, mobile: bool | None = None) -> None:
         self.model, self.scene = model, scene
@@ -231,7 +234,10 @@ class FactorLib:
         return ctx
 
     def start_pose(self, obj: str) -> FloatArray:
+        """The scene's pose of ``obj`` (4,): in the world, or in its drawer's frame (closed) if it starts in one."""
         o = self.objects[obj]
+        if o.support.endswith(".drawer"):
+            return self.in_drawer_frame(o.support.removesuffix(".drawer"), 0.0, o.T)
         return np.array([o.pose[0], o.pose[1], o.pose[2], o.pose[3]], float)
 
     def held_pose(self, obj: str) -> FloatArray:
@@ -362,7 +368,8 @@ class FactorLib:
             if builder is None:
                 raise RlgpError(f"unknown factor kind {key[0]!r}; valid: {FACTOR_KINDS}")
             ins, rows = builder(*key[1:])
-            fn = ca.Function("_".join(key), ins, [ca.vertcat(*rows.g)])
+            name = re.sub(r"[^0-9A-Za-z]+", "_", "_".join(key))  # CasADi's names: a drawer tag has ":+,"
+            fn = ca.Function(name, ins, [ca.vertcat(*rows.g)])
             self._fns[key] = FactorFn(fn, np.asarray(rows.lower, float), np.asarray(rows.upper, float))
         return self._fns[key]
 
@@ -409,7 +416,8 @@ class FactorLib:
         rows.add(r[0] - r0[0], 0.0, 0.0)  # the tool point GRASP_DEPTH below the top
         s_max = max(self.grasp_offset_max(obj), 0.0)
         rows.add(r[1], -s_max, s_max)  # across the finger pads: the open fingers clear of the faces
-        rows.add(ca.sin(2 * r[2]), 0.0, 0.0)  # the fingers close across two opposite faces
+        if self.objects[obj].shape != "cylinder":  # a round side: the fingers close across it from any side
+            rows.add(ca.sin(2 * r[2]), 0.0, 0.0)  # the fingers close across two opposite faces
         rows.add(r[3], -MAX_TILT, MAX_TILT)
         return [r], rows
 
@@ -443,9 +451,12 @@ class FactorLib:
             rows.add(a[i] - b[i], 0.0, 0.0)
         return [a, b], rows
 
-    def _f_ColFix(self, arm: str):
+    def _f_ColFix(self, arm: str, drawers: str | None = None):
+        """The arm clear of the fixtures; with ``drawers`` (a ``drawer_pntc.colfix`` tag) also of the drawers
+        at their openings, the base of the open ones' footprints (without: the carcasses only)."""
         sh = self.arm_shapes(arm)
         q, rows = ca.SX.sym("q", len(self.arm_index(arm))), Rows.empty()
+        boxes, open_rects = self.drawer_obstacles(drawers) if drawers else ([], [])
         P = sh.fn(q)[0]
         if self.pr2:  # the arm's own fingers: a wrist flexed further than this folds them onto the forearm
             names = [self.model.joint_names[i] for i in self.arm_index(arm)]
@@ -455,7 +466,7 @@ class FactorLib:
                 if "shoulder_pan" in n:  # an arm crossing to the far side, or far out: its upper arm hits the torso
                     side = -1.0 if n.startswith("r_") else 1.0
                     rows.add(side * q[k], -PAN_CROSS_MAX, PAN_OUT_MAX)
-        for b in self.fixture_boxes:
+        for b in [*self.fixture_boxes, *boxes]:
             Tinv = np.linalg.inv(b.T)
             for k in sh.fixture:
                 pl = ca.DM(Tinv[:3, :3]) @ P[:, k] + ca.DM(Tinv[:3, 3])
@@ -471,7 +482,7 @@ class FactorLib:
                 rows.add(box_sdf(pl, np.asarray(b.size) / 2), sh.radii[k], ca.inf)
         if self.mobile:  # the base footprint off the fixtures, the arm off its own base
             rs = self._symbols(arm, q)
-            rects = [(np.asarray(fx.T), np.asarray(fx.size)) for fx in self.scene.fixtures]
+            rects = [(np.asarray(fx.T), np.asarray(fx.size)) for fx in self.scene.fixtures] + open_rects
             footprint_clear(rs, rects, rows, margin=BASE_MARGIN)
             if not self.pr2:  # the PR2's arms clear its trunk by the boxes above
                 self_clear(self.model, rs.q, arm_link_spheres(self.model, arm), self._probed()[2], rows)
@@ -491,37 +502,40 @@ class FactorLib:
         )
         return [qa, qb], rows
 
-    def _arm_object(self, arm: str, obj: str, hand: bool):
+    def _arm_object(self, arm: str, obj: str, hand: bool, cabinet: str | None = None):
         sh = self.arm_shapes(arm)
         points = sh.hand if hand else sh.arm
         q, w, rows = ca.SX.sym("q", len(self.arm_index(arm))), ca.SX.sym("w", 4), Rows.empty()
+        ww = w if cabinet is None else self._in_world_sx(cabinet, self.drawers[cabinet].travel, w)
         P = sh.fn(q)[0]
         half = np.asarray(self.objects[obj].size) / 2
         centres = [P[:, k] for k in points]
         if hand:  # each sphere swept LIFT up (a capsule): its point nearest the upright box in height
-            centres = [ca.vertcat(c[0], c[1], ca.fmin(ca.fmax(w[2], c[2]), c[2] + LIFT)) for c in centres]
-        points_box_clear(centres, [sh.radii[k] for k in points], w, half, rows)
+            centres = [ca.vertcat(c[0], c[1], ca.fmin(ca.fmax(ww[2], c[2]), c[2] + LIFT)) for c in centres]
+        points_box_clear(centres, [sh.radii[k] for k in points], ww, half, rows)
         return [q, w], rows
 
-    def _f_ColAO(self, arm: str, obj: str):
-        """The arm (upper arm, elbow, forearm, wrist) clear of a resting object."""
-        return self._arm_object(arm, obj, hand=False)
+    def _f_ColAO(self, arm: str, obj: str, cabinet: str | None = None):
+        """The arm (upper arm, elbow, forearm, wrist) clear of a resting object (with ``cabinet``: one in
+        that cabinet's open drawer, its pose in the drawer's frame)."""
+        return self._arm_object(arm, obj, hand=False, cabinet=cabinet)
 
-    def _f_ColHO(self, arm: str, obj: str):
+    def _f_ColHO(self, arm: str, obj: str, cabinet: str | None = None):
         """The hand and fingers clear of a resting object (not the one the hand has just let go), on the
         whole vertical line (``LIFT``) the hand descends along onto the keyframe and lifts off by: for an
         upright box and a vertical segment the nearest point is at the box centre's height clamped to
         the segment, so each sphere keeps one row."""
-        return self._arm_object(arm, obj, hand=True)
+        return self._arm_object(arm, obj, hand=True, cabinet=cabinet)
 
-    def _f_ColOO(self, obj_a: str, obj_b: str):
+    def _f_ColOO(self, obj_a: str, obj_b: str, cabinet: str | None = None):
         """Two upright boxes apart: a's centre outside b's box grown by a's footprint radius sideways and
-        a's half height up and down (a Minkowski sum, exact vertically, conservative sideways)."""
+        a's half height up and down (a Minkowski sum, exact vertically, conservative sideways). With
+        ``cabinet``: both in its drawer (poses in one frame, the same rows), ``DROP_MARGIN`` apart."""
         wa, wb, rows = ca.SX.sym("wa", 4), ca.SX.sym("wb", 4), Rows.empty()
         sa, sb = self.objects[obj_a].size, self.objects[obj_b].size
         ra = math.hypot(sa[0], sa[1]) / 2
         grown = np.asarray(sb) / 2 + np.array([ra, ra, sa[2] / 2])
-        points_box_clear([wa[:3]], [0.0], wb, grown, rows)
+        points_box_clear([wa[:3]], [0.0], wb, grown, rows, margin=DROP_MARGIN if cabinet else 0.0)
         return [wa, wb], rows
 
     # ----------------------------------------------------------------- numeric helpers
@@ -537,4 +551,5 @@ class FactorLib:
 FACTOR_KINDS = (
     *("Ref", "RefQ", "Place", "On", "Grasp", "Kin", "Equal", "EqualBase", "SameBase"),
     *("ColFix", "ColAA", "ColAO", "ColHO", "ColOO"),
+    *("Knob", "Drive", "Drop", "InDrawer"),
 )

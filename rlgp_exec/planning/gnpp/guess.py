@@ -45,7 +45,7 @@ class TopIK:
 
     def __init__(self, lib: FactorLib) -> None:
         self.lib = lib
-        self._solvers: dict[str, tuple] = {}
+        self._solvers: dict[str | tuple[str, ...], tuple] = {}  # by arm (and ColFix key, ``_solver``)
         self._memo: dict[tuple, tuple[bool, FloatArray]] = {}
         #: points a fixed-base arm reached from none of the starts: asked again with another reference
         #: posture, only that posture is tried (the other starts are the same whatever the reference);
@@ -55,15 +55,18 @@ class TopIK:
         self.n_solves = 0
         self.n_screened = 0  # later starts first tried by LM (``IK_SCREEN``)
 
-    def _solver(self, arm: str):
-        if arm not in self._solvers:
+    def _solver(self, arm: str, col_key: tuple[str, ...] | None = None):
+        """The IK's solver for ``arm`` with the ``ColFix`` factor ``col_key`` (default: the fixtures alone;
+        a drawer tag: the drawers at their openings too, ``drawer_pntc.colfix``)."""
+        key: str | tuple[str, ...] = arm if col_key is None else (arm, *col_key)
+        if key not in self._solvers:
             man = self.lib.model.manipulator(arm)
             n = len(self.lib.arm_index(arm))
             q, p = ca.SX.sym("q", n), ca.SX.sym("p", 3 + n)
             T = self.lib.arm_shapes(arm).fn(q)[1]
             a = T[:3, :3] @ ca.DM(man.approach)
             c = T[:3, :3] @ ca.DM(man.closing)
-            col = self.lib.factor(("ColFix", arm))
+            col = self.lib.factor(col_key or ("ColFix", arm))
             g = ca.vertcat(T[:3, 3] - p[:3], a[2], c[2], col.fn(q))
             lbg = np.r_[np.zeros(3), -1.0, 0.0, col.lower]
             ubg = np.r_[np.zeros(3), -np.cos(MAX_TILT), 0.0, col.upper]
@@ -73,19 +76,21 @@ class TopIK:
                 opts |= IK_FIXED_BASE
             s = ca.nlpsol(f"top_ik_{arm}", "ipopt", {"x": q, "p": p, "f": ca.sumsqr(q - p[3:]), "g": g}, opts | LEAN)
             screen = None if self.lib.mobile else LevenbergMarquardt(q, p, g, IK_MAX_ITER)
-            self._solvers[arm] = (s, lbg, ubg, screen)
-        return self._solvers[arm]
+            self._solvers[key] = (s, lbg, ubg, screen)
+        return self._solvers[key]
 
     def solve(
-        self, arm: str, pos: FloatArray, q_ref: FloatArray, fixed_base: bool = False
+        self, arm: str, pos: FloatArray, q_ref: FloatArray, fixed_base: bool = False,
+        col_key: tuple[str, ...] | None = None,
     ) -> tuple[bool, FloatArray]:
         """(ok, q): from q_ref, else from the start posture and a few seeded perturbations of it (a
-        mobile arm's base: q_ref's). ``fixed_base``: a mobile arm's base stays at q_ref's."""
+        mobile arm's base: q_ref's). ``fixed_base``: a mobile arm's base stays at q_ref's. ``col_key``:
+        the ``ColFix`` factor to keep (``_solver``)."""
         fixed_base = fixed_base and self.lib.mobile
-        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), *((True,) if fixed_base else ()))
+        key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), *((True,) if fixed_base else ()), *(col_key or ()))
         if key in self._memo:
             return self._memo[key]
-        s, lbg, ubg, screen = self._solver(arm)
+        s, lbg, ubg, screen = self._solver(arm, col_key)
         lo, hi = self.lib.var_bounds("q", arm)
         rng = np.random.default_rng(7)
         home = self.lib.home_q(arm)
@@ -94,7 +99,7 @@ class TopIK:
             if fixed_base:
                 lo, hi = lo.copy(), hi.copy()
                 lo[:3] = hi[:3] = q_ref[:3]
-        point = (arm, *np.round(pos, 3))
+        point = (arm, *np.round(pos, 3), *(col_key or ()))
         starts = [q_ref, home]
         if self.lib.mobile and not fixed_base:  # the base on a ring round the point, facing it
             starts += _ring_starts(home, pos, q_ref)
@@ -213,22 +218,57 @@ def _clear_spot(
 def initial_guess(
     lib: FactorLib, ik: TopIK, states: Sequence[SymbolicState], variables: Sequence[Var]
 ) -> dict[Var, FloatArray]:
-    """A value for every variable of the plan's graph (and for arms' variables not in it)."""
+    """A value for every variable of the plan's graph (and for arms' variables not in it); the drawer
+    actions' from ``drawer_guess``."""
+    from rlgp_exec.planning.gnpp import drawer_guess, drawer_pntc
+
     arms = lib.arms
     world: dict[str, FloatArray] = {o: lib.start_pose(o) for o in lib.objects}
     q: dict[str, FloatArray] = {m: lib.home_q(m) for m in arms}
     out: dict[Var, FloatArray] = {}
     prev: dict[str, str] = parents(states[0])
     held: dict[str, FloatArray] = {}
+    in_drawer: dict[str, FloatArray] = {}  # object -> its pose in its drawer's frame (4,)
+    shifts: dict[int, FloatArray] = {}  # t -> the base's xy move by a drawer's drive into state t
+    knob_ik = lib.knob_ik
     for t, s in enumerate(states):
         par = parents(s)
+        drawers = bool(drawer_pntc.cabinets(s))
+
+        def col(m: str, t: int = t, s: SymbolicState = s, drawers: bool = drawers) -> tuple[str, ...] | None:
+            """The key of the ColFix factor of arm m at t (the drawers at their openings), None without drawers."""
+            return drawer_pntc.colfix(t, s, states[t - 1] if t else None, m).key if drawers else None
+
+        for m in arms:
+            if t == 0:
+                break
+            c, c0 = drawer_pntc.knob_of(s, m), drawer_pntc.knob_of(states[t - 1], m)
+            if c is not None and c0 is None:  # take_knob: the hand on the knob
+                q[m] = knob_ik.solve(m, c, s, q[m])[1]
+            elif drawer_pntc.drives(m, states[t - 1], s):  # the base moved with the drawer
+                assert c0 is not None
+                shifts[t] = drawer_guess.drive_shift(lib, c0, ("open", c0) in s)
+                q[m] = q[m].copy()
+                q[m][:2] += shifts[t]
         for o in sorted(par):
             p = par[o]
+            if ("in", o, p) in s:  # in a drawer: dropped now, or where it is in the drawer's frame
+                arm = prev.get(o)
+                if arm in arms and o in held:
+                    others = [w for b, w in in_drawer.items() if par.get(b) == p]
+                    _, land, top = drawer_guess.drop_guess(lib, o, p, others)
+                    ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm], col(arm))
+                    if ok:  # the yaw it is held at (see the placement below)
+                        T = lib.tool_T(arm, q[arm]) @ rel_T(held[o], lib.upright(arm))
+                        land[3] = lib.in_drawer_frame(p, lib.drawers[p].travel, T)[3]
+                    in_drawer[o] = land
+                out[Var("x", o, t)] = in_drawer.get(o, world[o]).copy()
+                continue
             if p in arms:
                 if prev.get(o) != p:  # picked now: the arm goes to the object's top
                     h = lib.objects[o].size[2]
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    q[p] = _keyframe_ik(lib, ik, p, top, q[p])[1]
+                    q[p] = _keyframe_ik(lib, ik, p, top, q[p], col(p))[1]
                     _share_base(lib, q, p)
                     held[o] = _held_of(lib, p, q[p], world[o])
                 out[Var("x", o, t)] = held.get(o, lib.held_pose(o))
@@ -251,7 +291,7 @@ def initial_guess(
                 arm = prev.get(o)
                 if arm in arms:
                     top = world[o][:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
-                    ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm])
+                    ok, q[arm] = _keyframe_ik(lib, ik, arm, top, q[arm], col(arm))
                     _share_base(lib, q, arm)
                     if ok and o in held:
                         # the object put down turned as the hand holds it: the Kin factor's yaw row
@@ -264,21 +304,24 @@ def initial_guess(
             out[Var("q", m, t)] = q[m].copy()
         prev = par
     if lib.mobile:
-        _hold_base(out, states, lib.base_arm, arms)
+        _hold_base(out, states, lib.base_arm, arms, shifts)
     missing = [v for v in variables if v not in out]
     if missing:
         log.warning("no initial value for %s", missing[:5])
     return out
 
 
-def _keyframe_ik(lib: FactorLib, ik: TopIK, arm: str, top: FloatArray, q_ref: FloatArray) -> tuple[bool, FloatArray]:
+def _keyframe_ik(
+    lib: FactorLib, ik: TopIK, arm: str, top: FloatArray, q_ref: FloatArray, col_key: tuple[str, ...] | None = None
+) -> tuple[bool, FloatArray]:
     """The IK of a keyframe: a mobile arm first with its base kept where it stands (as ``EqualBase`` will
-    keep it since the last end-move), else anywhere (the guess of a plan that needs another base)."""
+    keep it since the last end-move), else anywhere (the guess of a plan that needs another base).
+    ``col_key``: its ``ColFix`` factor (``TopIK._solver``)."""
     if lib.mobile:
-        ok, q = ik.solve(arm, top, q_ref, fixed_base=True)
+        ok, q = ik.solve(arm, top, q_ref, fixed_base=True, col_key=col_key)
         if ok:
             return ok, q
-    return ik.solve(arm, top, q_ref)
+    return ik.solve(arm, top, q_ref, col_key=col_key)
 
 
 def _share_base(lib: FactorLib, q: dict[str, FloatArray], arm: str) -> None:
@@ -288,11 +331,18 @@ def _share_base(lib: FactorLib, q: dict[str, FloatArray], arm: str) -> None:
             q[m][:3] = q[arm][:3]
 
 
-def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], mover: str, arms: Sequence[str]) -> None:
+def _hold_base(
+    out: dict[Var, FloatArray], states: Sequence[SymbolicState], mover: str, arms: Sequence[str],
+    shifts: Mapping[int, FloatArray] | None = None,
+) -> None:
     """The base of the mobile arm ``mover`` (and of the ``arms`` that ride it) in ``out`` made constant over
     each stretch of states in which it is not moving (as ``EqualBase`` and ``SameBase`` will hold it): the
     base of the stretch's first keyframe of any arm (the IK chose it to reach there; the start's for the
-    first stretch); a state in which it moves takes the next stretch's."""
+    first stretch); a state in which it moves takes the next stretch's. ``shifts``: t -> the xy move (2,)
+    [m] of a drawer's drive into state t, which the base follows."""
+    moved = np.zeros((len(states), 2))  # the drives' moves summed up to each state
+    for t in range(1, len(states)):
+        moved[t] = moved[t - 1] + (shifts or {}).get(t, 0.0)
     runs: list[list[int]] = []
     for t, s in enumerate(states):
         if moving(mover) in s:
@@ -302,17 +352,23 @@ def _hold_base(out: dict[Var, FloatArray], states: Sequence[SymbolicState], move
         else:
             runs.append([t])
     for k, run in enumerate(runs):
-        base = out[Var("q", mover, run[0])][:3].copy()
+        t_ref, m_ref = run[0], mover
         if run[0] > 0:
             changed = ((t, m) for t in run[1:] for m in arms
                        if not np.allclose(out[Var("q", m, t)], out[Var("q", m, t - 1)]))
-            t1, m1 = next(changed, (run[0], mover))
-            base = out[Var("q", m1, t1)][:3].copy()
+            t_ref, m_ref = next(changed, (run[0], mover))
+        base = out[Var("q", m_ref, t_ref)][:3].copy()
+        base[:2] -= moved[t_ref]  # the stretch's base before its drives
         end = runs[k + 1][0] if k + 1 < len(runs) else len(states)
-        first = runs[k - 1][-1] + 1 if k > 0 else run[0]
-        for t in range(first, end):  # the moving states before the stretch, the stretch, the moving ones after
+        for t in range(run[0], end):  # the stretch, then the moving states after it take the next base
             for m in arms:
                 out[Var("q", m, t)][:3] = base
+                out[Var("q", m, t)][:2] += moved[min(t, run[-1])]
+        if k > 0:  # the moving states before the stretch
+            for t in range(runs[k - 1][-1] + 1, run[0]):
+                for m in arms:
+                    out[Var("q", m, t)][:3] = base
+                    out[Var("q", m, t)][:2] += moved[run[0]]
 
 
 def ik_seed(
@@ -321,6 +377,7 @@ def ik_seed(
     """``guess`` with each kinematic switch's arm at a top-grasp IK of its object's guessed world pose
     (and the held pose that matches): a start for a subgraph whose guess later solves have moved."""
     out = dict(guess)
+    cols = {f.vars[0]: f.key for f in factors if f.kind == "ColFix" and len(f.key) > 2}  # drawer-tagged ones
     for f in factors:
         if f.kind != "Kin":
             continue
@@ -328,7 +385,8 @@ def ik_seed(
         o, arm = f.key[1], f.key[2]
         w = np.asarray(out[w_var], float)
         h = lib.objects[o].size[2]
-        ok, q = ik.solve(arm, w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)]), np.asarray(out[q_var], float))
+        ok, q = ik.solve(arm, w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)]), np.asarray(out[q_var], float),
+                         col_key=cols.get(q_var))
         if ok:
             out[q_var] = q
             out[r_var] = _held_of(lib, arm, q, w)

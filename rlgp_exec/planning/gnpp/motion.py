@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from rlgp_exec.planning.gnpp.drawer_motion import APPROACH, DRIVES, DrawerState, along_axis
 from rlgp_exec.planning.gnpp.geometry import FLOOR, LIFT, FactorLib
 from rlgp_exec.planning.gnpp.guess import TopIK, rel_T
 from rlgp_exec.planning.gnpp.pntc import MOVES, Var
@@ -100,13 +101,17 @@ def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> list[FloatArray
 
 
 def world_checker(
-    lib: FactorLib, arm: str, resting: Mapping[str, FloatArray], held: tuple[str, FloatArray] | None
+    lib: FactorLib, arm: str, resting: Mapping[str, FloatArray], held: tuple[str, FloatArray] | None,
+    openings: Mapping[str, float] | None = None,
 ):
     """A ``reach.WorldChecker`` for ``arm``'s motions: the objects at ``resting`` world poses (4,) as
-    obstacles, ``held`` = (object, T_tool_obj (4, 4)) in its hand. The caller closes it."""
+    obstacles, ``held`` = (object, T_tool_obj (4, 4)) in its hand, the drawers at ``openings`` [m] (None:
+    closed). The caller closes it."""
     from rlgp_exec.reach import WorldChecker
 
     checker = WorldChecker(lib.scene, lib.model.manipulator(arm).group, manipulator=arm)
+    if openings:
+        checker.set_drawers(dict(openings))
     place(checker, lib, resting, held)
     return checker
 
@@ -129,6 +134,7 @@ def _drive(
     base: FloatArray,
     resting: Mapping[str, FloatArray],
     held: tuple[str, FloatArray] | None,
+    openings: Mapping[str, float] | None = None,
 ) -> FloatArray | None:
     """A checked path (n, nq) from the full configuration q1 to ``arm``'s base pose ``base`` (3,) [m, rad]
     (the arm in one of ``drive_postures``), the objects at ``resting`` world poses (4,) as obstacles,
@@ -136,7 +142,7 @@ def _drive(
     from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
 
     model = lib.model
-    checker = world_checker(lib, arm, resting, held)
+    checker = world_checker(lib, arm, resting, held, openings)
     try:
         q2 = q1.copy()
         q2[list(model.group("base"))] = base
@@ -159,6 +165,7 @@ def phases_of(
     phases: list[Phase] = []
     keyframes = []
     transits: list[Transit] = []
+    drawers = DrawerState.start(lib)  # the openings and what is in the drawers, before each action
 
     def full() -> FloatArray:
         return lib.full_q(cur)
@@ -170,7 +177,7 @@ def phases_of(
 
     def resting_at(k: int) -> dict[str, FloatArray]:
         """The objects in no hand before action ``k`` (0-based): world pose (4,) [x, y, z, yaw]."""
-        return {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in lib.objects if o not in holding.values()}
+        return {o: drawers.world(lib, o, values, k) for o in lib.objects if o not in holding.values()}
 
     def home(arm: str) -> FloatArray:
         """The arm's start posture where the base now stands."""
@@ -217,9 +224,9 @@ def phases_of(
         if a.name in MOVES:
             if a.name == MOVES[1]:  # end-move: drive to the base of the keyframes that follow
                 still = [o for o in lib.objects if o not in holding.values()]
-                resting = {o: values.get(Var("x", o, k + 1), lib.start_pose(o)) for o in still}
+                resting = {o: drawers.world(lib, o, values, k + 1) for o in still}
                 grip = None if obj is None else (obj, rel_T(values[Var("x", obj, k + 1)], lib.upright(m)))
-                drive = _drive(lib, m, full(), values[v][:3], resting, grip)
+                drive = _drive(lib, m, full(), values[v][:3], resting, grip, drawers.openings)
                 if drive is None:
                     return f"no collision-free drive for {a} to base {np.round(values[v][:3], 3).tolist()}"
                 path += list(drive[1:])
@@ -228,6 +235,30 @@ def phases_of(
             phases.append(Phase(np.array(path), obj, arm=m, carried=carried, action=k))
             keyframes.append(full())
             continue
+        if a.name in DRIVES:  # the hand on the knob drives the drawer, lets go and backs off along its axis
+            c = a.args[1]
+            cur[m] = values[v]
+            phases.append(Phase(np.array([*path, full()]), None, knob=c, drives_drawer=True, arm=m,
+                                carried=carried, action=k))
+            keyframes.append(full())
+            cur[m] = along_axis(lib, c, values[v], APPROACH)
+            leave = [keyframes[-1], full()]
+            if lib.mobile:  # then the arm folds to its start posture: a drive from a hand held out at a knob's
+                cur[m] = np.r_[cur[m][:3], lib.home_q(m)[3:]]  # height meets what stands at its end
+                leave.append(full())
+            phases.append(Phase(np.array(leave), None, knob=c, arm=m, carried=carried))
+            drawers.after(lib, a)
+            continue
+        if a.name == "take_knob":  # onto the knob along the drawer's axis, from APPROACH out
+            c, q_k = a.args[1], values[v]
+            resting = {o: drawers.world(lib, o, values, k) for o in lib.objects if o not in holding.values()}
+            transits.append(Transit(len(phases), len(path) - 1, m, None, resting))
+            for row in (along_axis(lib, c, q_k, APPROACH), q_k):
+                cur[m] = row
+                path.append(full())
+            keyframes.append(full())
+            phases.append(Phase(np.array(path), None, knob=c, arm=m, carried=carried, action=k))
+            continue  # the hand stays on the knob (not lifted): the drive starts there
         obj = a.args[1]
         q_k = values[v]
         up = _lift(lib, ik, m, q_k)
@@ -236,7 +267,7 @@ def phases_of(
         still = [o for o in lib.objects if o not in holding.values()]
         carrying = holding.get(m)
         grip = None if carrying is None else (carrying, rel_T(values[Var("x", carrying, k)], lib.upright(m)))
-        resting = {o: values.get(Var("x", o, k), lib.start_pose(o)) for o in still}
+        resting = {o: drawers.world(lib, o, values, k) for o in still}
         transits.append(Transit(len(phases), len(path) - 1, m, grip, resting))
         for row in [*up[::-1], q_k]:  # to the approach, then down the lift's rows onto the keyframe
             cur[m] = row
@@ -246,9 +277,11 @@ def phases_of(
         if a.name == "pick":
             phases.append(Phase(np.array(path), None, grasp=obj, arm=m, carried=carried, action=k))
             holding[m] = obj
-        else:
-            phases.append(Phase(np.array(path), obj, release=obj, arm=m, carried=carried, action=k))
+        else:  # place, stack; a drop's object falls into the drawer
+            phases.append(Phase(np.array(path), obj, release=obj, fall=a.name == "drop", arm=m, carried=carried,
+                                action=k))
             holding.pop(m, None)
+        drawers.after(lib, a)
     path = [full()]
     why = lift_low(path, None, "the last action", len(actions))
     if why is not None:

@@ -35,6 +35,7 @@ from rlgp_exec.planning.gnpp.conflicts import (
     find_conflict,
 )
 from rlgp_exec.planning.gnpp.database import SubgraphDB
+from rlgp_exec.planning.gnpp.drawer_motion import DRAWER_ACTIONS
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
@@ -74,7 +75,9 @@ VARIANTS: dict[str, ExtractOptions | None] = {
     "gnpp_trng": ExtractOptions(time_search=True, relaxations=True, convergence=True, database=True),
     "oneway": None,
 }
-GEOMETRIC = ("pick", "place", "stack", *MOVES)
+#: the actions the graph-NLP has factors for (``pntc``, the drawers' ``drawer_pntc``); the task's others
+#: (pick_from_drawer) are left out of its logic
+GEOMETRIC = ("pick", "place", "stack", *DRAWER_ACTIONS, *MOVES)
 
 
 class Logic(enum.Enum):
@@ -207,6 +210,7 @@ def _plan(
         db.bind(lib.call_context())
     mobile = (lib.base_arm,) if lib.mobile else ()
     task = add_flags(add_moves(without_detours(ground_scene(scene, manipulators=list(lib.arms))), mobile, lib.riders))
+    task = dataclasses.replace(task, operators=tuple(op for op in task.operators if op.action.name in GEOMETRIC))
     wide = lib.too_wide()
     if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
         ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
@@ -316,6 +320,7 @@ def _plan(
                     again = _realise(scene, lib, ik, traj, variant, actions, polished, t0, solver.n_solves)
                     laid = again if isinstance(again, Plan) else laid
             if isinstance(laid, str):
+                log.info("%s iteration %d: no layout: %s", variant, it, laid)
                 forbidden.append(_whole(states))
                 blocked_plans += 1
                 reasons.append(laid)

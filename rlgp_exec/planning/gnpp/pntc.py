@@ -1,8 +1,10 @@
 """The PNTC model (GNPP paper, Sec. III): logic states, continuous variables, and the mapping Pi from
 consecutive partial states to constraint factors.
 
-Logic: the ground STRIPS task of ``symbolic`` (pick / place / stack for every arm), read as SAS+-like
-variables: ``parent(o)`` = the support an object rests on or the arm holding it, ``gripper(m)`` =
+Logic: the ground STRIPS task of ``symbolic`` (pick / place / stack and the drawer actions take_knob,
+open_drawer / close_drawer and drop, for every arm; their factors: ``drawer_pntc``), read as SAS+-like
+variables: ``parent(o)`` = the support an object rests on, the cabinet whose drawer it is in, or the arm
+holding it, ``gripper(m)`` =
 free or the held object. Two flag atoms are added so that Pi is time-invariant: ``(at-init o)``
 (o rests where the scene put it; deleted by every pick of o — the paper's ``parent = o.init``) and
 ``(initial-state)`` (deleted by every action; the arms are at their start configuration).
@@ -161,10 +163,11 @@ def add_moves(problem: GroundProblem, arms: Sequence[str], riders: Mapping[str, 
 
 
 def parents(state: SymbolicState) -> dict[str, str]:
-    """parent(o) for every object: the support it is on or the arm holding it."""
+    """parent(o) for every object: the support it is on, the cabinet whose drawer it is in, or the arm
+    holding it."""
     out = {}
     for a in state:
-        if a[0] == "on":
+        if a[0] in ("on", "in"):
             out[a[1]] = a[2]
         elif a[0] == "holding":
             out[a[2]] = a[1]
@@ -179,6 +182,8 @@ def _state_factors(
     t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str],
     riders: Mapping[str, str],
 ) -> list[Factor]:
+    from rlgp_exec.planning.gnpp import drawer_pntc
+
     out: list[Factor] = []
     par = parents(s)
     if INITIAL in s:
@@ -190,9 +195,15 @@ def _state_factors(
     for o in resting:
         if ("at-init", o) in s:
             out.append(Factor(("Ref", o), (Var("x", o, t),), ((t, _ps([("at-init", o)])),)))
+    # the objects on a support (world poses); those in a drawer (its frame) are ``drawer_pntc``'s
+    resting = sorted(o for o in movable if o in par and par[o] not in arms and ("on", o, par[o]) in s)
+    drawers = bool(drawer_pntc.cabinets(s))
     if INITIAL not in s:  # the start configuration is given (the tucked arms are not modelled by spheres)
         for m in arms:
-            out.append(Factor(("ColFix", m), (Var("q", m, t),), ((t, _ps((), [INITIAL])),)))
+            if drawers:
+                out.append(drawer_pntc.colfix(t, s, prev, m))
+            else:
+                out.append(Factor(("ColFix", m), (Var("q", m, t),), ((t, _ps((), [INITIAL])),)))
         for ma, mb in itertools.combinations(arms, 2):
             out.append(Factor(("ColAA", ma, mb), (Var("q", ma, t), Var("q", mb, t)), ((t, _ps((), [INITIAL])),)))
         for m in arms:
@@ -207,15 +218,19 @@ def _state_factors(
             continue
         apart = [("holding", m, x) for m in arms for x in (a, b)] + [("on", a, b), ("on", b, a)]
         out.append(Factor(("ColOO", a, b), (Var("x", a, t), Var("x", b, t)), ((t, _ps((), apart)),)))
+    if drawers:
+        out += drawer_pntc.drawer_state_factors(t, s, prev, arms)
     return out
 
 
 def _transition_factors(
     t: int, s: SymbolicState, s2: SymbolicState, arms: list[str], movable: set[str], mobile: Sequence[str]
 ) -> list[Factor]:
+    from rlgp_exec.planning.gnpp import drawer_pntc
+
     out: list[Factor] = []
-    for m in mobile:
-        if moving(m) not in s and moving(m) not in s2:
+    for m in mobile:  # (a drawer's drive moves the base with the drawer: ``Drive``)
+        if moving(m) not in s and moving(m) not in s2 and not drawer_pntc.drives(m, s, s2):
             ps = ((t, _ps((), [moving(m)])), (t + 1, _ps((), [moving(m)])))
             out.append(Factor(("EqualBase", m), (Var("q", m, t), Var("q", m, t + 1)), ps))
     p1, p2 = parents(s), parents(s2)
@@ -225,13 +240,15 @@ def _transition_factors(
         if a == b and ("at-init", o) in s:
             continue  # Ref pins both
         if a == b:
-            fact = ("holding", a, o) if a in arms else ("on", o, a)
+            fact = ("holding", a, o) if a in arms else ("in", o, a) if ("in", o, a) in s else ("on", o, a)
             neg = [] if a in arms else [("at-init", o)]
             out.append(Factor(("Equal", "4"), (x1, x2), ((t, _ps([fact], neg)), (t + 1, _ps([fact])))))
-        elif a not in arms and b in arms:  # pick: the kinematic switch and the grasp
+        elif a not in arms and b in arms and ("on", o, a) in s:  # pick: the kinematic switch and the grasp
             ps = ((t, _ps([("on", o, a)])), (t + 1, _ps([("holding", b, o)])))
             out.append(Factor(("Kin", o, b), (Var("q", b, t + 1), x1, x2), ps))
             out.append(Factor(("Grasp", o), (x2,), ps))
+        elif a in arms and ("in", o, b) in s2:  # drop: ``drawer_pntc``
+            continue
         elif a in arms and b not in arms:  # place / stack: the kinematic switch and the placement
             ps = ((t, _ps([("holding", a, o)])), (t + 1, _ps([("on", o, b)])))
             out.append(Factor(("Kin", o, a), (Var("q", a, t + 1), x2, x1), ps))
@@ -239,6 +256,9 @@ def _transition_factors(
                 out.append(Factor(("On", o, b), (x2, Var("x", b, t + 1)), ps))
             else:
                 out.append(Factor(("Place", o, b), (x2,), ps))
+    if drawer_pntc.cabinets(s):
+        holder = {o: p for o, p in p1.items() if p in arms}
+        out += drawer_pntc.drawer_transition_factors(t, s, s2, arms, holder)
     return out
 
 
