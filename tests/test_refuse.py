@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.planning import capabilities
 from rlgp_exec.planning.capabilities import CAPABILITIES, TaskRefusedError, needed_actions, refuse
 from rlgp_exec.planning.feasibility import physical_refusals
 from rlgp_exec.planning.gripper_limits import gripper_limits, min_graspable_height
@@ -228,9 +229,15 @@ def test_gnpp_too_wide_does_not_call_a_narrow_object_wider():
     assert lib.too_wide() == {} and lib.grasp_offset_max(name) == 0.0
 
 
-def test_cli_plan_exits_2_with_the_refusal():
+def _gnpp_keeping_the_pr2_base(monkeypatch) -> None:
+    fixed = CAPABILITIES["gnpp_trn"]._replace(drives_base=frozenset({"hsr"}))
+    monkeypatch.setitem(capabilities.CAPABILITIES, "gnpp_trn", fixed)
+
+
+def test_cli_plan_exits_2_with_the_refusal(monkeypatch):
     from rlgp_exec.cli import main
 
+    _gnpp_keeping_the_pr2_base(monkeypatch)
     assert main(["plan", str(SCENES / "sorting_pr2.toml"), "--planner", "gnpp"]) == 2
 
 
@@ -310,7 +317,8 @@ def test_memory_stays_bounded_on_fifty_objects():
     assert res["peak_rss"] < BASELINE + MEMORY_CAP, res
 
 
-def test_a_refusal_is_a_scene_error_naming_the_file_and_the_table():
+def test_a_refusal_is_a_scene_error_naming_the_file_and_the_table(monkeypatch):
+    _gnpp_keeping_the_pr2_base(monkeypatch)
     with pytest.raises(SceneError) as e:
         refuse(load_scene(SCENES / "sorting_pr2.toml"), "gnpp_trn")
     assert (e.value.source, e.value.where) == ("sorting_pr2.toml", "[robot].base")

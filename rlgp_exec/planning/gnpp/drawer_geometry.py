@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.planning.drawers import DrawerView, drawer_views
+from rlgp_exec.planning.gnpp.held_pose import rel_pose
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
 from rlgp_exec.planning.nlp.keyframes import DROP_HIGH, DROP_LOW
 from rlgp_exec.robot.model import FloatArray
@@ -116,14 +117,13 @@ class DrawerFactors:
         """The held object (held pose r, in the hand at q) upright over the open drawer's reachable part, its
         bottom a little below or above the rim (``drop_above``, R-LGP's bounds); w, its pose in the drawer
         frame after the fall, is straight below the release, turned as it was."""
-        from rlgp_exec.planning.gnpp.geometry import _rel_pose
         from rlgp_exec.planning.nlp.factors import Rows
 
         n = len(self.arm_index(arm))  # type: ignore[attr-defined]
         q, w, r, rows = ca.SX.sym("q", n), ca.SX.sym("w", 4), ca.SX.sym("r", 4), Rows.empty()
         o, v = self.objects[obj], self.drawers[cabinet]  # type: ignore[attr-defined]
         d = v.travel
-        T = self.arm_shapes(arm).fn(q)[1] @ _rel_pose(r, self.upright(arm))  # type: ignore[attr-defined]
+        T = self.arm_shapes(arm).fn(q)[1] @ rel_pose(r, self.upright(arm))  # type: ignore[attr-defined]
         rect, half = v.drop_rect(d, max(o.size[0], o.size[1]) / 2)
         rim = v.rim_z(d)
         drop_above(T, rect, half, o.size, rim + DROP_LOW, rim + DROP_HIGH, rows)

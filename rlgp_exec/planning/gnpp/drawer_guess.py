@@ -15,6 +15,7 @@ import numpy as np
 
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.gnpp.drawer_pntc import opening_atom
+from rlgp_exec.planning.gnpp.spots import free_spot
 from rlgp_exec.planning.nlp.keyframes import DROP_HIGH, DROP_LOW
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
@@ -82,15 +83,14 @@ def drop_guess(lib, obj: str, cabinet: str, others: list[FloatArray]) -> tuple[F
     """(the object's world pose at the release (4,), where it lands in the drawer's frame (4,), the tool
     point (3,) [m] that holds it there): over the drop rectangle, its bottom midway between the drop's
     height bounds, as far from the drawer-frame poses ``others`` as the rectangle allows."""
-    from rlgp_exec.planning.gnpp.guess import _free_spot
 
     o, v = lib.objects[obj], lib.drawers[cabinet]
     d = v.travel
     rect, half = v.drop_rect(d, max(o.size[0], o.size[1]) / 2)
     T_d = v.T_world_drawer(d)
-    # the rectangle's own extents (drop_rect has shrunk it by the object already): a footprint of 0 for _free_spot
+    # the rectangle's own extents (drop_rect has shrunk it by the object already): a footprint of 0 for free_spot
     world_others = [lib.in_world(cabinet, d, w)[:2] for w in others]
-    xy = _free_spot(rect, np.asarray(half, float), (0.0, 0.0, 0.0), world_others)
+    xy = free_spot(rect, np.asarray(half, float), (0.0, 0.0, 0.0), world_others)
     yaw = math.atan2(T_d[1, 0], T_d[0, 0])
     h = o.size[2]
     bottom = v.rim_z(d) + 0.5 * (DROP_LOW + DROP_HIGH)

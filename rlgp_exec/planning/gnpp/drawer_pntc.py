@@ -32,8 +32,8 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 
-from rlgp_exec.planning.gnpp.pntc import INITIAL, Factor, Var
-from rlgp_exec.planning.gnpp.pntc import _ps as ps
+from rlgp_exec.planning.gnpp.factor import INITIAL, Factor, Var
+from rlgp_exec.planning.gnpp.factor import partial_state as ps
 from rlgp_exec.planning.symbolic.model import Atom, SymbolicState
 from rlgp_exec.planning.symbolic.reformulate import PartialState
 

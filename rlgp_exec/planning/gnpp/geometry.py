@@ -32,6 +32,7 @@ import pybullet as p
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.capabilities import beyond_reach
 from rlgp_exec.planning.gnpp.drawer_geometry import DROP_MARGIN, DrawerFactors
+from rlgp_exec.planning.gnpp.held_pose import rel_pose as _rel_pose
 from rlgp_exec.planning.gripper_limits import gripper_limits
 from rlgp_exec.planning.margins import BASE_MARGIN, PLACE_LIFT
 from rlgp_exec.planning.nlp.action import target_surface
@@ -126,21 +127,6 @@ class FactorFn:
         ins = [ca.SX.sym(f"v{k}", self.fn.sparsity_in(k)) for k in range(self.fn.n_in())]
         g = self.fn(*ins)
         return ca.Function(f"{self.fn.name()}_jac", ins, [ca.jacobian(g, ca.vertcat(*[ca.vec(v) for v in ins]))])
-
-
-def _rel_pose(r: ca.SX, upright: FloatArray) -> ca.SX:
-    """T_tool_obj of the held pose r = [d, s, psi, theta]: the object's centre d below the tool point
-    along the object's axis, shifted s along the fingers (tool y), turned psi about its own axis and
-    tilted theta about the fingers' axis (a leaning hand reaches further across a table)."""
-    c, s = ca.cos(r[2]), ca.sin(r[2])
-    Rz = ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
-    ct, st = ca.cos(r[3]), ca.sin(r[3])
-    Ry = ca.vertcat(ca.horzcat(ct, 0, st), ca.horzcat(0, 1, 0), ca.horzcat(-st, 0, ct))
-    R = Ry @ ca.DM(upright) @ Rz
-    T = ca.SX.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -r[0] * R[:, 2] + r[1] * ca.DM([0.0, 1.0, 0.0])
-    return T
 
 
 _W = ca.SX.sym("w", 4)

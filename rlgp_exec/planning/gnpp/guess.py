@@ -17,6 +17,7 @@ from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
 from rlgp_exec.planning.gnpp.lm import TOL as LM_TOL
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 from rlgp_exec.planning.gnpp.pntc import Factor, Var, moving, parents
+from rlgp_exec.planning.gnpp.spots import free_spot as _free_spot
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
 
@@ -158,7 +159,7 @@ def _held_of(lib: FactorLib, arm: str, q: FloatArray, w: FloatArray) -> FloatArr
 
 
 def rel_T(r: FloatArray, upright: FloatArray) -> FloatArray:
-    """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``geometry._rel_pose``, numerically)."""
+    """T_tool_obj (4, 4) of the held pose r = [d, s, psi, theta] (``held_pose.rel_pose``, numerically)."""
     c, s = math.cos(r[2]), math.sin(r[2])
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     ct, st = math.cos(r[3]), math.sin(r[3])
@@ -168,22 +169,6 @@ def rel_T(r: FloatArray, upright: FloatArray) -> FloatArray:
     T[:3, :3] = R
     T[:3, 3] = -r[0] * R[:, 2] + r[1] * np.array([0.0, 1.0, 0.0])
     return T
-
-
-def _free_spot(
-    T_world_surface: FloatArray, half: FloatArray, size: Sequence[float], others: list[FloatArray], n: int = 7
-) -> FloatArray:
-    """The xy (2,) on an n x n grid over the surface (inset by the object's footprint, as ``Place``)
-    farthest from the other resting objects' centres (the surface's centre if none): objects placed
-    on one region must not start at the same point (a signed distance has no gradient there)."""
-    margin = max(size[0], size[1]) / 2
-    ax, ay = (max(float(h) - margin, 0.0) for h in half[:2])
-    grid = np.array([(x, y) for x in np.linspace(-ax, ax, n) for y in np.linspace(-ay, ay, n)])
-    pts = T_world_surface[:2, 3] + grid @ T_world_surface[:2, :2].T
-    if not others:
-        return T_world_surface[:2, 3].copy()
-    d = np.min(np.linalg.norm(pts[:, None, :] - np.asarray(others)[None, :, :], axis=2), axis=1)
-    return pts[int(np.argmax(d))].copy()
 
 
 def _clear_spot(
