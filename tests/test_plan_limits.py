@@ -65,7 +65,7 @@ def test_the_executive_plans_with_the_limits_it_is_given():
     [
         (["plan", str(SORTING), "--time-budget", "0"], "time budget 0.0 s: must be a positive"),
         (["run", str(SORTING), "--max-expansions", "0"], "max expansions 0: must be a positive"),
-        (["daemon", "--scene", str(SORTING), "--time-budget", "-1"], "time budget -1.0 s"),
+        (["daemon", "--scene", str(SORTING), "--time-budget", "-1"], "time_budget = -1.0: expected a positive"),
         (["bench", "scaling", "--n", "1..99"], "object counts must lie in 1..12"),
         (["bench", "scaling", "--n", "2", "--planners", "nope"], "unknown planner(s) ['nope']; valid:"),
         (["bench", "scaling", "--n", "2", "--robots", "r2d2"], "valid: ['pr2', 'hsr']"),

@@ -64,6 +64,22 @@ def test_toppra_samples_respect_limits_and_pass_the_waypoints(problem):
         assert np.min(np.linalg.norm(q - wp, axis=1)) <= step + 1e-6
 
 
+def test_the_limit_check_finds_a_peak_between_its_samples():
+    """A case hypothesis found: an acceleration peak at 0.81 of a gridpoint interval, between the check's
+    samples at 8 per interval, 2.1 % over its limit."""
+    path = np.array([
+        [-0.38142059, -0.32241417], [0.1213406, -0.97534866], [0.28150144, -0.60965182],
+        [-0.21785684, -1.32141722], [-0.57790585, -1.06952439], [-0.47828079, -1.62942477],
+        [-0.58607153, -1.35854909],
+    ])
+    limits = make_limits(2, 1.0, 1.0, 10.0)
+    res = time_parameterize(path, limits)
+    assert res.status is TimingStatus.OK, res.reason
+    _ts, _q, dq, ddq = res.trajectory.sample_rate(1000.0)
+    assert np.all(np.abs(ddq) <= limits.acceleration * (1 + TOL) + 1e-9)
+    assert np.all(np.abs(dq) <= limits.velocity * (1 + TOL) + 1e-9)
+
+
 def test_the_limit_check_samples_every_gridpoint_interval():
     """A case hypothesis found: the check sampled evenly over the duration, too coarsely in the long
     intervals, and passed an acceleration 2.2 % over its limit."""

@@ -60,7 +60,7 @@ log = logging.getLogger(__name__)
 logging.getLogger("toppra").setLevel(logging.ERROR)  # its uncontrollable-grid warning is our fallback path
 
 MAX_RETRIES = 3
-CHECK_PER_INTERVAL = 8  # samples per gridpoint interval when verifying limits
+CHECK_PER_INTERVAL = 32  # samples per gridpoint interval when verifying limits (an interval's peak lies between them)
 POSITION_TOLERANCE = 1e-3  # [m or rad] the spline may pass a position limit by this much
 _DUP = 1e-9
 CUSP_DEG = 80.0  # [deg] a path turning more than this at a waypoint stops there when no smooth timing exists
