@@ -20,7 +20,7 @@ planner's options (the control: it agrees with the record), ``--set`` changing s
 QP solver (``daqp``, ``qpoases``, ``osqp``, ...), stopped at the first feasible iterate as IPOPT is;
 ``lm`` the planner's Levenberg-Marquardt on the rows' violation (``gnpp.lm``, its verdict). ``--max-factors``
 and ``--arms-only`` leave the other runs to IPOPT (its recorded verdict and CPU count): a split policy.
-Stop 27's measurements (seed 0 of each scene; CPU of the re-solves, against the recorded IPOPT runs):
+Measurements (seed 0 of each scene; CPU of the re-solves, against the recorded IPOPT runs):
 
     corpus (runs, IPOPT feasible)   solver             agree  feas->inf  CPU ratio
     tower_pr2 (158, 134)            sqpmethod:daqp       157          1       0.28
@@ -50,7 +50,7 @@ variables of up to 60 factors, IPOPT's recorded runs for the rest) agreed with e
 of the three scenes, at 0.47-0.52 of IPOPT's CPU on tower, 0.68-0.76 on obstacles, 0.84-1.01 on Hanoi (its
 infeasible runs at 0.4 of IPOPT's on tower). Without ``--arms-only`` it called up to 4 object-only runs
 (4-8 variables, ColOO rows) infeasible per corpus; on every NLP (no ``--max-factors``) the large ones made it
-slower than IPOPT (tower 2.7 against 1.2 s). Stop 27 tried it in the planner, interleaved with IPOPT
+slower than IPOPT (tower 2.7 against 1.2 s). Tried in the planner, interleaved with IPOPT
 alone, 5 seeds x 2 rounds, and did not land it:
 - as it is, and for ``refute`` too: tower seed 2 learnt a third conflict and failed a replay (its points on
   their bounds: the upper arm on the table on the way to the first keyframe);
@@ -58,7 +58,7 @@ alone, 5 seeds x 2 rounds, and did not land it:
   against 3.66 / 5.02 s, the same 2 conflicts on every seed;
 - but obstacles went to 8.17 / 8.37 s against 6.16 / 7.67 s (seed 3: 2 plans blocked), and Hanoi to 0 of 5
   solved (100 s budget: its "infeasible" answers refuted by IPOPT again and again, every plan blocked).
-Stop 28 put it in the planner as an option (``plan_gnpp(lm_verdicts=True)``): the verdict on the true bounds,
+It is in the planner as an option (``plan_gnpp(lm_verdicts=True)``): the verdict on the true bounds,
 the point moved inside them afterwards (``LevenbergMarquardt.polish``), ``refute`` left to IPOPT, fixed-base
 arms only. Tower and Hanoi gained, obstacles lost (``solver.LM_MAX_FACTORS`` has the figures).
 """

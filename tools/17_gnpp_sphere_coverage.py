@@ -12,7 +12,7 @@ it sticks out by |p - c| - r for the nearest such sphere. A keyframe whose fixtu
 outside and the worst overhang [mm] (median and maximum over the configurations).
 
 The raw figure counts the whole hull: a link's part that never comes near a fixture (the PR2 upper arm's
-shoulder end, always high) counts as much as its underside. Stop 28 (tower_pr2, right arm, 10 configurations):
+shoulder end, always high) counts as much as its underside. Measured (tower_pr2, right arm, 10 configurations):
 upper arm 98 % of its points outside, up to 174 mm (the shoulder housing); elbow and forearm 93-97 %, ~40 mm;
 fingers and tips 69-84 %, 42-49 mm (only the 1.1 cm spheres at the tips face the fixtures); palm 62 %,
 14 mm; the wrist covered. The upper arm's one sphere (8 cm at mid-link) under-covers its underside, whose

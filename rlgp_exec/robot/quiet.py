@@ -12,43 +12,35 @@ __all__ = ["import_quietly", "quiet_stderr", "quiet_stdout"]
 
 
 @contextlib.contextmanager
-def quiet_stdout() -> Iterator[None]:
+def _quiet(stream_name: str) -> Iterator[None]:
+    """Redirect the file descriptor of ``sys.<stream_name>`` to /dev/null inside the block (the Python
+    stream is flushed first)."""
+    stream = getattr(sys, stream_name)
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):  # the stream replaced (pytest capture, notebooks)
+        yield
+        return
+    stream.flush()
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), fd)
+            yield
+    finally:
+        stream.flush()
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+def quiet_stdout() -> contextlib.AbstractContextManager[None]:
     """Redirect file descriptor 1 to /dev/null inside the block (Python's sys.stdout is flushed first)."""
-    try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, OSError, ValueError):  # stdout replaced (pytest capture, notebooks)
-        yield
-        return
-    sys.stdout.flush()
-    saved = os.dup(fd)
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), fd)
-            yield
-    finally:
-        sys.stdout.flush()
-        os.dup2(saved, fd)
-        os.close(saved)
+    return _quiet("stdout")
 
 
-@contextlib.contextmanager
-def quiet_stderr() -> Iterator[None]:
+def quiet_stderr() -> contextlib.AbstractContextManager[None]:
     """Redirect file descriptor 2 to /dev/null inside the block (Python's sys.stderr is flushed first)."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # stderr replaced (pytest capture, notebooks)
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(fd)
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), fd)
-            yield
-    finally:
-        sys.stderr.flush()
-        os.dup2(saved, fd)
-        os.close(saved)
+    return _quiet("stderr")
 
 
 def import_quietly(module: str) -> None:
