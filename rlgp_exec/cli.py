@@ -36,8 +36,8 @@ PROGRESS_LOGGERS = (  # candidates, long sequences' keyframe chunks, GNPP iterat
 STAGE_LOGGERS = (
     "rlgp_exec.demo", "rlgp_exec.bench.executive", "rlgp_exec.bench.camera", "rlgp_exec.bench.hal",
     "rlgp_exec.bench.planners", "rlgp_exec.bench.scaling", "rlgp_exec.bench.timing",
-    "rlgp_exec.bench.reach", "perception.bench", "rlgp_exec.animate", "rlgp_exec.gui",
-    "rlgp_exec.executive.states",
+    "rlgp_exec.bench.reach", "rlgp_exec.bench.perception", "rlgp_exec.animate", "rlgp_exec.gui",
+    "rlgp_exec.executive.states", "rlgp_exec.executive.act",
 )
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 

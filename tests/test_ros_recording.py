@@ -212,3 +212,19 @@ def test_the_description_the_scene_and_the_plan_are_drawn(run):
     plan = updates["/plan_path"][-1]
     assert set(plan) == {"plan/base", *(f"plan/{m.name}" for m in model.config.manipulators)}
     assert all(e[11] for e in plan.values())  # line primitives
+
+
+def test_a_sensed_scene_with_an_object_in_a_drawer_draws():
+    """The executive records the world as sensed: a block dropped into the drawer (its pose from a ``make
+    demo`` recording) keeps the file's random range, which a scene file may not have there; the viewer
+    draws it all the same."""
+    from rlgp_exec.executive.ros_record import RosView
+    from rlgp_exec.scene.serialize import scene_to_dict
+    from rlgp_exec.scene.shipped import shipped_scene
+
+    data = scene_to_dict(shipped_scene("table_clearing_hsr"))
+    block = next(o for o in data["object"] if o["name"] == "block")
+    assert "random" in block
+    block["pose"] = [1.1516, -0.1375, 0.365, -1.7103]  # in the drawer
+    out = RosView().derive("/scene", data, 1.0)
+    assert "/scene_entities" in {topic for topic, _ in out}

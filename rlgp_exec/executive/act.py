@@ -293,6 +293,8 @@ class Actor:
                 return ActOutcome(ActStatus.ESTOPPED, k, None, held)
             if self.on_phase is not None:
                 self.on_phase(k, len(phases))
+            ends = f", then grasp {ph.grasp}" if ph.grasp else f", then release {ph.release}" if ph.release else ""
+            log.info("phase %d of %d: %s%s", k + 1, len(phases), "motion" if traj is not None else "gripper", ends)
             st = self._state()
             if isinstance(st, Violation):
                 return ActOutcome(ActStatus.VIOLATION, k, st, held)

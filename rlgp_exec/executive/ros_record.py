@@ -97,7 +97,10 @@ class RosView:
         return []
 
     def _scene(self, data: Mapping[str, Any], t: float) -> list[tuple[str, bytes]]:
-        scene = scene_from_dict(dict(data), "recorded scene")
+        # the viewer draws the world as sensed: the file's random ranges (which rule out an object in a
+        # drawer) are no part of it
+        movables = [{k: v for k, v in o.items() if k != "random"} for o in data.get("object", [])]
+        scene = scene_from_dict({**data, "object": movables}, "recorded scene")
         out = []
         if self.robot is None or self.robot.model.name != scene.robot.name:  # the robot: once
             self.robot = RobotTf(load_robot(scene.robot.name))
