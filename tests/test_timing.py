@@ -64,34 +64,29 @@ def test_toppra_samples_respect_limits_and_pass_the_waypoints(problem):
         assert np.min(np.linalg.norm(q - wp, axis=1)) <= step + 1e-6
 
 
-def test_the_limit_check_finds_a_peak_between_its_samples():
-    """A case hypothesis found: an acceleration peak at 0.81 of a gridpoint interval, between the check's
-    samples at 8 per interval, 2.1 % over its limit."""
-    path = np.array([
+#: cases hypothesis found, each once passed by the limit check while over a limit in the trajectory:
+#: an acceleration peak at 0.81 of a gridpoint interval, between the check's samples at 8 per interval
+#: (2.1 % over); and samples spread evenly over the duration, too coarse in the long intervals (2.2 % over)
+_LIMIT_CHECK_CASES = {
+    "peak_between_samples": (make_limits(2, 1.0, 1.0, 10.0), [
         [-0.38142059, -0.32241417], [0.1213406, -0.97534866], [0.28150144, -0.60965182],
         [-0.21785684, -1.32141722], [-0.57790585, -1.06952439], [-0.47828079, -1.62942477],
         [-0.58607153, -1.35854909],
-    ])
-    limits = make_limits(2, 1.0, 1.0, 10.0)
-    res = time_parameterize(path, limits)
-    assert res.status is TimingStatus.OK, res.reason
-    _ts, _q, dq, ddq = res.trajectory.sample_rate(1000.0)
-    assert np.all(np.abs(ddq) <= limits.acceleration * (1 + TOL) + 1e-9)
-    assert np.all(np.abs(dq) <= limits.velocity * (1 + TOL) + 1e-9)
-
-
-def test_the_limit_check_samples_every_gridpoint_interval():
-    """A case hypothesis found: the check sampled evenly over the duration, too coarsely in the long
-    intervals, and passed an acceleration 2.2 % over its limit."""
-    path = np.array([
+    ]),
+    "every_gridpoint_interval": (make_limits(5, 0.2421875, 2.0, 20.0), [
         [-1.52110170e-03, 6.38009632e-01, -7.29088558e-01, -3.40870143e-01, -1.47011105e-01],
         [-8.78317049e-02, 1.35595443e+00, -6.21301977e-01, -1.12471717e+00, -8.28984887e-01],
         [-7.52547505e-01, 1.94432404e+00, 1.50257464e-01, -1.72224592e+00, -7.65301450e-02],
         [-2.39448390e-01, 2.36013004e+00, 7.46843391e-01, -1.31823576e+00, 2.29055470e-01],
         [-1.82583024e-01, 1.97536650e+00, 1.03168202e+00, -5.62353364e-01, -3.37009018e-01],
-    ])
-    limits = make_limits(5, 0.2421875, 2.0, 20.0)
-    res = time_parameterize(path, limits)
+    ]),
+}
+
+
+@pytest.mark.parametrize("case", list(_LIMIT_CHECK_CASES))
+def test_the_limit_check_catches_what_it_once_missed(case):
+    limits, waypoints = _LIMIT_CHECK_CASES[case]
+    res = time_parameterize(np.array(waypoints), limits)
     assert res.status is TimingStatus.OK, res.reason
     _ts, _q, dq, ddq = res.trajectory.sample_rate(1000.0)
     assert np.all(np.abs(dq) <= limits.velocity * (1 + TOL) + 1e-9)
