@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray, PerceptionError
-from rlgp_exec.perception.detector import ImageStatus, TagDetector
+from rlgp_exec.perception.detector import DetectionResult, ImageStatus, TagDetector
 from rlgp_exec.perception.pose import estimate_tag_pose
 from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.perception.tracker import ObjectTracker, Observation
@@ -48,6 +48,11 @@ def _check_pose(T: object) -> FloatArray:
     return M
 
 
+def _check_stamp(stamp: float) -> None:
+    if not math.isfinite(stamp):
+        raise PerceptionError(f"image stamp must be a finite time [s], got {stamp}")
+
+
 class Perception:
     def __init__(
         self,
@@ -63,15 +68,20 @@ class Perception:
     def process(self, image: object, T_world_camera: object, stamp: float) -> PerceptionReport:
         """Detect tags in ``image`` taken from ``T_world_camera`` at ``stamp`` [s]; update the tracker."""
         T_wc = _check_pose(T_world_camera)
-        if not math.isfinite(stamp):
-            raise PerceptionError(f"image stamp must be a finite time [s], got {stamp}")
+        _check_stamp(stamp)
         if isinstance(image, np.ndarray) and image.ndim >= 2:
             h, w = image.shape[:2]
             if (w, h) != (self.camera.width, self.camera.height):
                 raise PerceptionError(
                     f"image is {w}x{h} but the camera model is {self.camera.width}x{self.camera.height}"
                 )
-        result = self.detector.detect(image)
+        return self.locate(self.detector.detect(image), T_wc, stamp)
+
+    def locate(self, result: DetectionResult, T_world_camera: object, stamp: float) -> PerceptionReport:
+        """The second half of :meth:`process`: PnP, world frame and tracker for tags already detected (a
+        caller sharing the tracker across threads detects outside its lock and locates inside it)."""
+        T_wc = _check_pose(T_world_camera)
+        _check_stamp(stamp)
         rejected = [why for _, why in result.rejected]
         if result.status is ImageStatus.BLANK:
             log.warning("blank image at t=%.3f: nothing to detect", stamp)

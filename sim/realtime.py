@@ -1,5 +1,6 @@
 """The simulated robot's fixed-rate loop: a thread that calls its tick at absolute deadlines and keeps the
-period errors it saw (the robot servers' 100 Hz, Zenoh and CAN alike)."""
+period errors it saw (the robot servers' 100 Hz, Zenoh and CAN alike). Like a robot's controller it runs
+under ``SCHED_FIFO`` where the OS allows (:mod:`rlgp_exec.hal.realtime`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from rlgp_exec.hal.realtime import RealtimeGrant, request_realtime, sleep_until
+
 __all__ = ["RealTimeLoop"]
 
 log = logging.getLogger(__name__)
@@ -18,8 +21,10 @@ log = logging.getLogger(__name__)
 class RealTimeLoop:
     """Call ``tick()`` every ``period`` s on absolute deadlines (no drift); records the period errors."""
 
-    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop") -> None:
+    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop", realtime: bool = True) -> None:
         self.period = period
+        self.realtime = realtime  # the loop's thread under SCHED_FIFO when the OS allows it
+        self.grant = RealtimeGrant(False, "SCHED_OTHER", "not started")
         self.tick = tick
         self.name = name
         self.errors_ms: list[float] = []  # |actual period - nominal| per cycle, last 10 000
@@ -31,6 +36,8 @@ class RealTimeLoop:
         self._thread.start()
 
     def run(self) -> None:
+        if self.realtime:
+            self.grant = request_realtime()
         nxt = time.perf_counter()
         last = nxt
         while not self._stop.is_set():
@@ -42,7 +49,7 @@ class RealTimeLoop:
             now = time.perf_counter()
             if now - nxt > 5 * self.period:  # fell far behind (machine stalled): resynchronise
                 nxt = now
-            self._stop.wait(max(0.0, nxt - now))
+            sleep_until(nxt, self._stop)
             t = time.perf_counter()
             self.errors_ms.append(abs((t - last) - self.period) * 1e3)
             if len(self.errors_ms) > 10_000:

@@ -353,6 +353,7 @@ class ZenohRobotServer:
             "holds": dict(self.holds),
             "sim_time": self.sim.time,
             "loop_period_err_ms_p99": self.loop.p99_ms(),
+            "loop_policy": self.loop.grant.policy,
         }
 
     def _on_stats(self, query: Any) -> None:

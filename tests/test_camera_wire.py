@@ -243,6 +243,49 @@ def test_tags_are_placed_through_the_camera_pose_at_the_images_stamp():
         world.close()
 
 
+def test_the_control_loop_reads_poses_while_a_frame_is_being_detected():
+    """Tag detection takes a frame's worth of milliseconds; the moved-object monitor reads poses from the
+    control loop meanwhile, and must not wait for it (a held lock stalled the 100 Hz loop)."""
+    import threading
+
+    from rlgp_exec.executive.camera_source import CameraObjects
+
+    scene = load_scene(SCENE)
+    model = load_robot("hsr")
+    src = CameraObjects(None, load_key_map("hsr"), model, scene, worker=False)
+    src.on_camera_info(ri.encode_camera_info(0.0, model.config.frames["camera"], 640, 480, K))
+    names = tuple(model.joint_names[3:])
+    q = model.home()
+    for k in range(5):
+        src.history.on_joint_states(rc.encode_joint_state(0.01 * k, names, q[3:], np.zeros(len(names))))
+        src.history.on_odom(rc.encode_odometry(0.01 * k, *q[:3], 0.0, 0.0, 0.0))
+    detecting, release = threading.Event(), threading.Event()
+    detect = src.perception.detector.detect
+
+    def slow_detect(image: object):  # a detector that holds on until the test has read the poses
+        detecting.set()
+        release.wait(10.0)
+        return detect(image)
+
+    src.perception.detector.detect = slow_detect  # type: ignore[method-assign]
+    frame = ri.parse_image(ri.encode_image(0.02, model.config.frames["camera"], np.zeros((480, 640, 3), np.uint8)))
+    assert isinstance(frame, ri.ImageFrame)
+    worker = threading.Thread(target=src.process, args=(frame,))
+    worker.start()
+    try:
+        assert detecting.wait(5.0)
+        src._last_wall = time.monotonic()  # an image processed just now: poses() reads the estimates
+        read: list[object] = []
+        reader = threading.Thread(target=lambda: read.append(src.poses()))
+        reader.start()
+        reader.join(timeout=2.0)
+        assert read, "poses() waited for the frame being detected"
+    finally:
+        release.set()
+        worker.join(timeout=10.0)
+        src.close()
+
+
 def test_a_jump_moves_an_object_only_once_confirmed():
     from rlgp_exec.perception.tracker import ObjectTracker, Observation
 

@@ -30,6 +30,7 @@ from rlgp_exec.executive.monitors import (
 )
 from rlgp_exec.executive.recorder import RecordSink
 from rlgp_exec.hal.interface import RobotInterface
+from rlgp_exec.hal.realtime import RealtimeGrant, realtime_priority, sleep_until
 from rlgp_exec.hal.types import GripperCommand, Lifecycle, RobotState
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.robot.model import FloatArray
@@ -44,7 +45,6 @@ GRIPPER_S = 1.5  # [s] for the gripper to close or open
 GRASP_FORCE_N = 10.0
 EMPTY_GRASP_MARGIN = 0.05  # [rad] fingers this close to fully closed: nothing in the hand
 STOP_TIMEOUT_S = 3.0
-SPIN_S = 0.0008  # [s] the last part of each control period is waited for by spinning, not sleeping
 LIMIT_SNAP = 1e-3  # [rad | m] setpoints this far outside a position limit are clipped onto it
 WORLD_CHECK_CYCLES = 10  # cycles between world checks (a moved object) during a phase
 
@@ -89,6 +89,11 @@ class ControlClock:
         if self._step is not None:
             self._step(self.period)
 
+    @property
+    def wall_clock(self) -> bool:
+        """Whether periods are kept on the wall clock (a robot of its own), not in lock-step with a sim."""
+        return self._step is None
+
     def restart(self) -> None:
         self._next, self._last = time.perf_counter(), None
 
@@ -97,13 +102,9 @@ class ControlClock:
             self._step(self.period)
         else:
             self._next += self.period
-            delay = self._next - time.perf_counter()
-            if delay > SPIN_S:
-                time.sleep(delay - SPIN_S)  # the OS wakes us late by up to ~1 ms: spin the rest
-            while time.perf_counter() < self._next:
-                pass
-            if delay < -5 * self.period:  # hopelessly late (a GC pause, a debugger): re-anchor
+            if self._next - time.perf_counter() < -5 * self.period:  # hopelessly late (a GC pause): re-anchor
                 self._next = time.perf_counter()
+            sleep_until(self._next)
         now = time.perf_counter()
         if self._last is not None:
             self.period_err_ms.append(abs(now - self._last - self.period) * 1e3)
@@ -121,8 +122,12 @@ class Actor:
         period: float = 0.01,
         tolerances: Tolerances | None = None,
         on_first_motion: Callable[[], None] | None = None,
+        realtime: bool = True,
     ) -> None:
         self.hal, self.model = hal, hal.model
+        #: the control loop's thread under SCHED_FIFO while phases run, when the OS allows it
+        self.realtime = realtime
+        self.grant = RealtimeGrant(False, "SCHED_OTHER", "no phases run yet")
         self.signals, self.recorder = signals, recorder
         self.tol = tolerances or Tolerances()
         self.clock = ControlClock(hal, period)
@@ -276,7 +281,8 @@ class Actor:
         ``world_check`` runs before each phase and every ``WORLD_CHECK_CYCLES`` during it."""
         self.looping = True
         try:
-            return self._run_phases(phases, trajectories, held, world_check)
+            with realtime_priority(self.realtime and self.clock.wall_clock) as self.grant:
+                return self._run_phases(phases, trajectories, held, world_check)
         finally:
             self.looping = False
 

@@ -325,10 +325,15 @@ class CameraObjects(ObjectSource):
             return False
         q, wall_js = at
         T_world_camera, T_world_tool = self.model.fk_many(q, [self.camera_frame, self.tool_frame])
+        try:  # outside the lock: the control loop reads poses while a frame's tags are found
+            found = self.perception.detector.detect(frame.image)
+        except PerceptionError as e:
+            self.rejects.reject("bad_image", str(e))
+            return False
         with self._lock:
             self.perception.camera = cam
             try:
-                rep = self.perception.process(frame.image, T_world_camera, frame.stamp)
+                rep = self.perception.locate(found, T_world_camera, frame.stamp)
             except PerceptionError as e:
                 self.rejects.reject("bad_image", str(e))
                 return False
