@@ -101,6 +101,7 @@ class CameraNode:
         self.frames = 0
         self._last_stamp = -math.inf  # the robot's clock at the last frame [s]
         self.render_ms: deque[float] = deque(maxlen=200)
+        self.failures: dict[str, int] = {}  # why a frame failed -> how many did
 
     # ------------------------------------------------------------------ set-up
     def start(self, connect_timeout_s: float = 30.0) -> None:
@@ -204,8 +205,11 @@ class CameraNode:
         while not self._stop.is_set():
             try:
                 self.render_frame()
-            except Exception:  # a bad frame must not end the camera
-                log.exception("camera node: frame failed")
+            except Exception as e:  # a bad frame must not end the camera; each kind of failure told once
+                why = f"{type(e).__name__}: {e}"
+                self.failures[why] = self.failures.get(why, 0) + 1
+                if self.failures[why] == 1:
+                    log.exception("camera node: frame failed (%s); further ones counted", why)
             nxt += self.period
             now = time.perf_counter()
             if now > nxt:  # rendering took longer than a period: the next frame at once, no backlog
@@ -215,6 +219,8 @@ class CameraNode:
                 last_report = time.monotonic()
                 ms = float(np.median(self.render_ms)) if self.render_ms else float("nan")
                 log.info("camera node: %d frames, frame median %.1f ms", self.frames, ms)
+                if self.failures:
+                    log.warning("camera node: frames failed: %s", self.failures)
 
 
 def _parser() -> argparse.ArgumentParser:

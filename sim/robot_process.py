@@ -4,18 +4,25 @@ with ``camera=True``, its head camera (``rlgp_exec.sim.camera_node``) in a secon
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
+from collections import deque
 from pathlib import Path
+from typing import IO
 
 from rlgp_exec.errors import RlgpError
 
 __all__ = ["RobotProcess", "camera_command", "free_endpoint"]
 
 ROOT = Path(__file__).resolve().parents[1]
+KEEP_LINES = 200  # of each child's output, for the error that reports its death
+
+log = logging.getLogger(__name__)
 
 
 def free_endpoint() -> str:
@@ -40,6 +47,18 @@ def _wait_ready(proc: subprocess.Popen[str], what: str) -> str:
         err = proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
         raise RlgpError(f"{what} did not start: {line.strip()} {err.strip()}")
     return line.strip()
+
+
+def _drain(stream: IO[str], what: str, keep: deque[str]) -> None:
+    """Read a child's output to its end: a pipe nobody reads fills (64 KiB) and blocks the child's next
+    log line, which stops a robot or a camera mid-task. Its warnings become ours; the rest is debug."""
+    for line in stream:
+        line = line.rstrip()
+        keep.append(line)
+        if line.startswith(("WARNING", "ERROR", "CRITICAL", "Traceback")):
+            log.warning("%s: %s", what, line)
+        else:
+            log.debug("%s: %s", what, line)
 
 
 class RobotProcess:
@@ -71,9 +90,12 @@ class RobotProcess:
         ]
         if scene is not None:
             cmd += ["--scene", str(scene)]
+        #: the last KEEP_LINES lines each child wrote ("sim-robot", "camera node")
+        self.output: dict[str, deque[str]] = {}
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             self.ready_line = _wait_ready(self.proc, "sim-robot")
+            self._drain(self.proc, "sim-robot")
             if camera:
                 assert scene is not None
                 self.camera = subprocess.Popen(
@@ -81,9 +103,16 @@ class RobotProcess:
                     cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                 )
                 _wait_ready(self.camera, "the camera node")
+                self._drain(self.camera, "camera node")
         except BaseException:
             self.stop()
             raise
+
+    def _drain(self, proc: subprocess.Popen[str], what: str) -> None:
+        keep = self.output.setdefault(what, deque(maxlen=KEEP_LINES))
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                threading.Thread(target=_drain, args=(stream, what, keep), name=f"{what} output", daemon=True).start()
 
     @property
     def pid(self) -> int:

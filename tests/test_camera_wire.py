@@ -485,3 +485,24 @@ def test_an_object_never_seen_is_grasped_where_the_scene_has_it_and_put_down_whe
     assert set(P) == {"block_green"}  # block_blue was never grasped nor seen: absent
     assert np.allclose(P["block_green"][:3, 3], [p_tool[0], p_tool[1] + 0.4, p_tool[2] + 0.03], atol=1e-6)
     src.close()
+
+
+def test_a_childs_output_is_read_so_a_chatty_robot_never_blocks():
+    """A child's pipe nobody reads fills at 64 KiB and blocks its next log line (a robot or camera stops
+    mid-task): RobotProcess reads it, keeps the last lines and forwards the warnings."""
+    import subprocess
+    import sys
+    from collections import deque
+
+    from rlgp_exec.sim.robot_process import KEEP_LINES, RobotProcess
+
+    chatty = "import sys\nfor i in range(5000): print('WARNING x: line', i, 'x' * 80, file=sys.stderr)\nprint('done')"
+    proc = subprocess.Popen([sys.executable, "-c", chatty], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rp = RobotProcess.__new__(RobotProcess)
+    rp.output = {}
+    rp._drain(proc, "chatty")
+    assert proc.wait(timeout=30) == 0  # 450 KB written: it would block for ever on an unread pipe
+    time.sleep(0.2)
+    kept = rp.output["chatty"]
+    assert isinstance(kept, deque) and len(kept) == KEEP_LINES
+    assert any("line 4999" in line for line in kept)  # the newest lines, for the error a death reports

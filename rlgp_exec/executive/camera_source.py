@@ -35,6 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from rlgp_exec.executive.drawer_memory import DrawerMemory
 from rlgp_exec.executive.head_view import HeadView, HeadViews
 from rlgp_exec.executive.world import ObjectSource
 from rlgp_exec.hal import ros_codec as rc
@@ -217,6 +218,7 @@ class CameraObjects(ObjectSource):
         self._info_cam: tuple[ri.CameraModel, CameraIntrinsics] | None = None
         self._lock = threading.Lock()  # the tracker and the bookkeeping below
         self._held: tuple[str, FloatArray] | None = None  # (object, T_tool_object (4, 4)) while grasped
+        self.drawers = DrawerMemory(scene)  # drawer openings and contents, by the hand (the lock held)
         grip = model.manipulator()
         self._gripper_i = model.index(model.joint_names[model.group(grip.gripper)[0]])
         self._grip_open, self._grip_closed = float(grip.open), float(grip.closed)
@@ -347,28 +349,50 @@ class CameraObjects(ObjectSource):
         return True
 
     def _follow_hand(self, T_world_tool: FloatArray, gripper: float, stamp: float) -> None:
-        """Grasp and release from the gripper joint and the tool frame (the lock held)."""
+        """Grasp and release (objects and drawer knobs) from the gripper joint and the tool frame (the
+        lock held)."""
         span = self._grip_open - self._grip_closed
         tracker = self.perception.tracker
-        if self._held is None and gripper < self._grip_open - CLOSED_FRACTION * span:
+        p_tool = T_world_tool[:3, 3]
+        empty = self._held is None and self.drawers.knob is None
+        if empty and gripper < self._grip_open - CLOSED_FRACTION * span:
             # where each object is believed to be: its estimate, else the scene's prior (never seen yet)
             believed = {o.name: o.T for o in self.scene.objects if o.tag is not None}
             believed.update({n: e.T_world_object for n, e in tracker.estimates().items()})
-            near = [(float(np.linalg.norm(T[:3, 3] - T_world_tool[:3, 3])), n) for n, T in believed.items()]
+            near = [(float(np.linalg.norm(T[:3, 3] - p_tool)), n) for n, T in believed.items()]
             near = [x for x in near if x[0] < TOUCH_M]
-            if near:
+            knob = self.drawers.nearest_knob(p_tool)
+            if knob is not None and (not near or knob[0] <= min(near)[0]):
+                self.drawers.take_knob(knob[1], p_tool, believed)
+            elif near:
                 d, name = min(near)
                 self._held = (name, np.linalg.inv(T_world_tool) @ believed[name])
                 log.info("camera: %s grasped (gripper at %.2f, tool %.3f m from it)", name, gripper, d)
         elif self._held is not None and gripper > self._grip_open - OPEN_FRACTION * span:
             name, T_tool_object = self._held
             self._held = None
-            T = T_world_tool @ T_tool_object
-            est = tracker.estimate(name)
-            if est is None:  # grasped where the scene had it, never seen: as sure as a fused estimate
-                est = ObjectEstimate(name, T, RELEASED_STD_M, 10 * RELEASED_STD_M, stamp, MIN_OBSERVATIONS, ())
-            tracker.put(replace(est, T_world_object=T, stamp=stamp, n_updates=max(est.n_updates, MIN_OBSERVATIONS)))
+            T = self.drawers.settle(name, T_world_tool @ T_tool_object)
+            self._put(name, T, stamp)
             log.info("camera: %s released", name)
+        elif self.drawers.knob is not None and gripper > self._grip_open - OPEN_FRACTION * span:
+            shift = self.drawers.shift(self.drawers.opening_now(p_tool) or 0.0)
+            for name in self.drawers.release_knob(p_tool):
+                est = tracker.estimate(name)
+                prior = next((o.T for o in self.scene.objects if o.name == name), None)
+                T_now = prior if est is None else est.T_world_object
+                if T_now is not None and shift is not None:
+                    T_moved = T_now.copy()
+                    T_moved[:3, 3] += shift
+                    self._put(name, T_moved, stamp)
+
+    def _put(self, name: str, T_world_object: FloatArray, stamp: float) -> None:
+        """Set an object's estimate from the hand (no image saw it there); as sure as a fused one."""
+        tracker = self.perception.tracker
+        est = tracker.estimate(name)
+        if est is None:  # grasped where the scene had it, never seen
+            est = ObjectEstimate(name, T_world_object, RELEASED_STD_M, 10 * RELEASED_STD_M, stamp, MIN_OBSERVATIONS, ())
+        n = max(est.n_updates, MIN_OBSERVATIONS)
+        tracker.put(replace(est, T_world_object=T_world_object, stamp=stamp, n_updates=n))
 
     def _bookkeep(
         self, updated: set[str], T_world_camera: FloatArray, p_tool: FloatArray, cam: CameraIntrinsics
@@ -379,7 +403,8 @@ class CameraObjects(ObjectSource):
         tracker = self.perception.tracker
         held = self._held[0] if self._held is not None else None
         for name, est in tracker.estimates().items():
-            if name == held or float(np.linalg.norm(est.T_world_object[:3, 3] - p_tool)) < OCCLUDED_M:
+            p = est.T_world_object[:3, 3]
+            if name == held or float(np.linalg.norm(p - p_tool)) < OCCLUDED_M or self.drawers.hidden(p):
                 self._misses.pop(name, None)
                 continue
             if name in updated:
@@ -424,12 +449,25 @@ class CameraObjects(ObjectSource):
         for name, est in ests.items():
             if names is not None and name not in names:
                 continue
-            if now - est.stamp <= self.max_age_s and est.n_updates >= min_updates:
+            if est.n_updates < min_updates:
+                continue
+            # what is in a drawer or a cabinet stays there unseen: it does not age out
+            if now - est.stamp <= self.max_age_s or self.drawers.hidden(est.T_world_object[:3, 3]):
                 out[name] = est.T_world_object
-        if held is not None and (names is None or held[0] in names):
-            at = self.history.at(now)
-            if at is not None:  # where the tool is now, not where the last image saw it
-                out[held[0]] = self.model.fk(at[0], self.tool_frame) @ held[1]
+        at = self.history.at(now)
+        T_tool = None if at is None else self.model.fk(at[0], self.tool_frame)  # the tool now, not at the last image
+        if held is not None and (names is None or held[0] in names) and T_tool is not None:
+            out[held[0]] = T_tool @ held[1]
+        with self._lock:
+            knob = self.drawers.knob
+            if knob is not None and T_tool is not None:  # a drawer's contents ride with it
+                shift = self.drawers.shift(self.drawers.opening_now(T_tool[:3, 3]) or 0.0)
+                for name in knob.contents:
+                    if name in out and shift is not None:
+                        out[name] = out[name].copy()
+                        out[name][:3, 3] += shift
+            if names is None:
+                out.update(self.drawers.frames(None if T_tool is None else T_tool[:3, 3]))
         return out
 
     def poses(self) -> dict[str, FloatArray]:

@@ -53,6 +53,7 @@ MOCAP_KEY = "rlgp/mocap/objects"  # tf2_msgs/msg/TFMessage, world frame "map"
 DRAWER_SUFFIX = ".drawer"  # mocap frame of a cabinet's drawer: "<cabinet>.drawer"
 SNAP_Z = 0.015  # [m] a sensed object this close above/below a support surface rests on it
 DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
+DRAWER_STOP_TOL_M = 0.005  # [m] a sensed opening this far beyond a stop is the stop, not a sensor fault
 HELD_MAX_M = 0.15  # [m] a held object sensed farther than this from the tool frame is not in the hand
 
 
@@ -140,7 +141,7 @@ class ZenohMocap(ObjectSource):
 
 def drawer_openings(scene: Scene, poses: dict[str, FloatArray]) -> dict[str, float]:
     """How far [m] each cabinet's drawer is out, from its sensed ``<cabinet>.drawer`` frame (cabinets
-    without one are absent)."""
+    without one are absent), within [0, travel]: a drawer at its stop is sensed a hair beyond it."""
     from rlgp_exec.scene import cabinet_geometry
 
     out = {}
@@ -149,7 +150,11 @@ def drawer_openings(scene: Scene, poses: dict[str, FloatArray]) -> dict[str, flo
         if fx.kind != "drawer_cabinet" or T is None:
             continue
         g = cabinet_geometry(fx)
-        out[fx.name] = float(np.dot(T[:3, 3] - g.T_world_drawer_closed[:3, 3], np.asarray(g.axis_world, float)))
+        sensed = float(np.dot(T[:3, 3] - g.T_world_drawer_closed[:3, 3], np.asarray(g.axis_world, float)))
+        if not -DRAWER_STOP_TOL_M <= sensed <= g.travel + DRAWER_STOP_TOL_M:
+            log.warning("drawer of %s sensed %.3f m out, beyond its travel [0, %.3f]: taken as at its stop",
+                        fx.name, sensed, g.travel)
+        out[fx.name] = float(np.clip(sensed, 0.0, g.travel))
     return out
 
 
