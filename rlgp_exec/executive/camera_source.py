@@ -12,7 +12,9 @@ clock. One that should be in view, close and facing the camera, but is not detec
 frames in a row is forgotten (the object is not there any more). The hand is followed by
 proprioception, as the head camera seldom sees into it: when the gripper closes with the tool frame at
 an object's estimate, the object rides with the tool (its pose follows the tool frame at the latest joint
-state); when the gripper opens again, it stays where the tool left it. Without fresh joint states
+state); when the gripper opens again, it stays where the tool left it. Drawers, which the camera sees
+neither the travel of nor into, are kept the same way (:mod:`rlgp_exec.executive.drawer_memory`): their
+frames ``<cabinet>.drawer`` are among the poses. Without fresh joint states
 or images nothing is returned. Bad payloads and images are dropped and counted (:attr:`rejects`), with
 a warning for the first few of each kind; they never give a pose.
 
