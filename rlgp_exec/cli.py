@@ -433,6 +433,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         objects=args.objects,
         limits=_limits(args),
         foxglove=args.foxglove,
+        camera=args.camera,
+        calibration=Path(args.calibration) if args.calibration else None,
     )
     record = opts.record
     if args.gui and record is None:  # the window plays the run back from its recording
@@ -550,6 +552,8 @@ def cmd_daemon(args: argparse.Namespace) -> int:
             zenoh_config=config if args.backend == "zenoh" else None,
             objects=args.objects,
             limits=limits,
+            camera=args.camera,
+            calibration=Path(args.calibration) if args.calibration else None,
         ),
         DaemonOptions(
             args.listen or (None if config else DEFAULT_LISTEN),
@@ -911,6 +915,9 @@ def _objects_flag(s: argparse.ArgumentParser) -> None:
         "--objects", choices=["camera", "mocap", "file"],
         help="where object poses come from (default: zenoh camera, sim its truth, can the file)",
     )
+    s.add_argument("--camera", metavar="DEVICE|VIDEO", help="zenoh, --objects camera: a local camera (/dev/video0, "
+                   "0, or a video file) mounted as the head camera, in place of the robot's camera topics")
+    s.add_argument("--calibration", metavar="FILE", help="the --camera's OpenCV or ROS calibration file (YAML/XML)")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -198,7 +198,10 @@ class CameraObjects(ObjectSource):
         max_age_s: float = 60.0,
         detector: str = "opencv",
         worker: bool = True,
+        images: bool = True,
     ) -> None:
+        """``images``: subscribe to the robot's camera topics; False when frames come from elsewhere
+        (:meth:`submit`, a local camera: :mod:`rlgp_exec.executive.local_camera`)."""
         # one OpenCV thread: with the robot and its renderer on the same cores, a parallel detection waits
         # for its slowest thread to be scheduled again
         cv2.setNumThreads(1)
@@ -227,21 +230,19 @@ class CameraObjects(ObjectSource):
         self._misses: dict[str, int] = {}
         self._last_stamp = -math.inf
         self._last_wall = -math.inf
-        self._pending: bytes | None = None  # the newest image payload not yet processed
+        self._pending: bytes | ri.ImageFrame | None = None  # the newest image (payload or frame) not yet processed
         self._wake = threading.Condition()
         self._stop = False
         self._subs: list[Any] = []
+        self.feeds: list[Any] = []  # what submits frames (a local camera), closed with this source
         self._thread: threading.Thread | None = None
         if worker:  # before the subscriptions: on_image hands frames to it from the first one
             self._thread = threading.Thread(target=self._work, name="camera-objects", daemon=True)
             self._thread.start()
         if session is not None:
-            handlers = {
-                "camera_image": self.on_image,
-                "camera_info": self.on_camera_info,
-                "joint_states": self.history.on_joint_states,
-                "odom": self.history.on_odom,
-            }
+            handlers = {"joint_states": self.history.on_joint_states, "odom": self.history.on_odom}
+            if images:
+                handlers |= {"camera_image": self.on_image, "camera_info": self.on_camera_info}
             self._subs = [
                 session.declare_subscriber(keys[t].key, guarded(self.rejects, t, fn, keys[t].key))
                 for t, fn in handlers.items()
@@ -267,7 +268,25 @@ class CameraObjects(ObjectSource):
             self._pending = payload
             self._wake.notify()
 
-    def _handle(self, payload: bytes) -> None:
+    def set_camera_model(self, model: ri.CameraModel) -> None:
+        """The camera model of the images :meth:`submit` hands in (what a CameraInfo gives otherwise)."""
+        self._info = model
+
+    def submit(self, frame: ri.ImageFrame) -> None:
+        """Hand a decoded image, stamped in the robot's clock, to the worker (the newest waiting one wins)."""
+        if self._thread is None:
+            self.process(frame)
+            return
+        with self._wake:
+            if self._pending is not None:
+                self.skipped += 1
+            self._pending = frame
+            self._wake.notify()
+
+    def _handle(self, payload: bytes | ri.ImageFrame) -> None:
+        if isinstance(payload, ri.ImageFrame):
+            self.process(payload)
+            return
         f = ri.parse_image(payload)
         if isinstance(f, rc.Rejected):
             self.rejects.reject(f.key, f.reason)
@@ -664,6 +683,8 @@ class CameraObjects(ObjectSource):
         }
 
     def close(self) -> None:
+        for feed in self.feeds:  # a local camera first: nothing is submitted after this
+            feed.close()
         with self._wake:
             self._stop = True
             self._wake.notify()

@@ -8,7 +8,8 @@ poses come from the scene file and the result says the goal was not verified).
 ``RunOptions.objects`` chooses the object source: ``camera`` (zenoh: AprilTags in the head camera's
 images, :class:`~rlgp_exec.executive.camera_source.CameraObjects`), ``mocap`` (zenoh: ``ZenohMocap``;
 sim: the simulation's truth), ``file`` (the scene file's poses, sensing nothing), or None for the
-backend's default (sim: its truth, zenoh: camera, can: file).
+backend's default (sim: its truth, zenoh: camera, can: file). ``RunOptions.camera`` and ``calibration``
+put a local camera (an OpenCV device or video file) in place of the robot's camera topics.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ class RunOptions:
     objects: str | None = None  # one of OBJECT_SOURCES; None: the backend's default
     limits: PlanLimits = DEFAULT_LIMITS  # the planner's CPU-time budget and search expansions, every plan
     foxglove: int | None = None  # serve the run live to Foxglove on this port (None: not)
+    camera: str | None = None  # camera objects from a local device or video file, not the robot's topics
+    calibration: Path | None = None  # ... with its OpenCV or ROS calibration file
 
 
 def object_source_name(opts: RunOptions) -> str:
@@ -61,6 +64,16 @@ def object_source_name(opts: RunOptions) -> str:
         raise RlgpError(f"--objects {name!r}: valid: {list(OBJECT_SOURCES)}")
     if name == "camera" and opts.backend != "zenoh":
         raise RlgpError(f"--objects camera reads the robot's camera over zenoh, not the {opts.backend} backend")
+    if (opts.camera is None) != (opts.calibration is None):
+        raise RlgpError("--camera and --calibration go together: a local camera needs its calibration file")
+    if opts.camera is not None and name != "camera":
+        raise RlgpError(f"--camera {opts.camera} is an object source: it needs --objects camera, not {name}")
+    if opts.camera is not None and opts.calibration is not None:  # before connecting: refused at once
+        from rlgp_exec.executive.local_camera import check_source
+        from rlgp_exec.perception.calibration import load_calibration
+
+        check_source(opts.camera)
+        load_calibration(opts.calibration)
     if name == "mocap" and opts.backend == "can":
         raise RlgpError("--objects mocap: the can backend has no motion-capture stream; use zenoh or file")
     return name
@@ -106,7 +119,18 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
         if source == "camera":
             from rlgp_exec.executive.camera_source import CameraObjects
 
-            return hal, CameraObjects(hal.session, hal.keys, hal.model, scene)  # type: ignore[attr-defined]
+            local = opts.camera is not None
+            cam = CameraObjects(hal.session, hal.keys, hal.model, scene, images=not local)  # type: ignore[attr-defined]
+            if local:
+                from rlgp_exec.executive.local_camera import LocalCamera
+
+                assert opts.camera is not None and opts.calibration is not None
+                try:
+                    cam.feeds.append(LocalCamera(opts.camera, opts.calibration, cam).start())
+                except BaseException:
+                    cam.close()
+                    raise
+            return hal, cam
         return hal, ZenohMocap(hal.session, opts.namespace)  # type: ignore[attr-defined]
     except BaseException:
         hal.shutdown()
