@@ -62,3 +62,11 @@ def test_sleep_until_ends_early_when_stopped():
     t0 = time.perf_counter()
     sleep_until(t0 + 30.0, stop)
     assert time.perf_counter() - t0 < 10.0
+
+
+def test_the_environment_turns_it_off(monkeypatch):
+    monkeypatch.setenv("RLGP_EXEC_REALTIME", "0")
+    grant = request_realtime()
+    assert not grant.granted and grant.reason == "RLGP_EXEC_REALTIME=0"
+    if hasattr(os, "sched_getscheduler"):
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER

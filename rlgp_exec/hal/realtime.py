@@ -5,7 +5,8 @@ tag detection, a planner) and when another thread of the same process holds the 
 
 * the loop's own thread runs under ``SCHED_FIFO`` (as ros2_control's controller manager does), so the
   kernel wakes it ahead of every normal process; granted to root, ``CAP_SYS_NICE`` or an ``rtprio``
-  limit (``/etc/security/limits.conf``), else the loop keeps its normal priority and says why once;
+  limit (``/etc/security/limits.conf``), else the loop keeps its normal priority and says why once
+  (``RLGP_EXEC_REALTIME=0`` turns it off);
 * the interpreter's GIL switch interval is shortened, so a busy Python thread hands the GIL to the
   woken loop within 0.1 ms rather than 5 ms.
 
@@ -25,12 +26,21 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import NamedTuple
 
-__all__ = ["RT_PRIORITY", "SPIN_S", "RealtimeGrant", "realtime_priority", "request_realtime", "sleep_until"]
+__all__ = [
+    "ENV_SWITCH",
+    "RT_PRIORITY",
+    "SPIN_S",
+    "RealtimeGrant",
+    "realtime_priority",
+    "request_realtime",
+    "sleep_until",
+]
 
 log = logging.getLogger(__name__)
 
 RT_PRIORITY = 40  # below the kernel's own RT threads (50) and ros2_control's default (50)
 SWITCH_INTERVAL_S = 0.0001  # [s] the GIL switch interval while a loop runs (CPython's default is 5 ms)
+ENV_SWITCH = "RLGP_EXEC_REALTIME"  # "0": no SCHED_FIFO for any loop of this process or its children
 SPIN_S = 0.0008  # [s] the last part of a wait that is spun rather than slept
 
 _warned = threading.Lock()
@@ -49,6 +59,8 @@ def request_realtime(priority: int = RT_PRIORITY) -> RealtimeGrant:
     Never raises: a refusal (no permission, not Linux) is returned, and logged once per process."""
     global _said_no
     sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    if os.environ.get(ENV_SWITCH, "1") == "0":
+        return RealtimeGrant(False, "SCHED_OTHER", f"{ENV_SWITCH}=0")
     if not hasattr(os, "sched_setscheduler"):
         grant = RealtimeGrant(False, "SCHED_OTHER", f"no SCHED_FIFO on {sys.platform}")
     else:
