@@ -405,7 +405,7 @@ def test_field_hsr_drives_between_the_tables_and_the_plan_is_validated():
     plan = res.plan
     assert plan.success and plan.validation is not None
     assert plan.validation.collision_free and plan.validation.goal_met
-    assert "(start-move arm)" in plan.actions and "(end-move arm)" in plan.actions
+    assert "(start-move)" in plan.actions and "(end-move)" in plan.actions  # one arm: not named
     assert any(f.kind == "EqualBase" for c in res.conflict_factors for f in c.factors)
     base = np.vstack([ph.path[:, :2] for ph in plan.phases])
     assert float(np.max(np.linalg.norm(base - base[0], axis=1))) > 1.0
