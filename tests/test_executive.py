@@ -34,6 +34,7 @@ from rlgp_exec.executive.monitors import Tolerances, check_duration, check_start
 from rlgp_exec.executive.replay import replay
 from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.hal import Lifecycle, make_backend
+from rlgp_exec.planning.actions import parse_text
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene, scene_from_dict, scene_to_dict
 from rlgp_exec.sim.robot_process import RobotProcess, free_endpoint
@@ -490,7 +491,8 @@ def test_zenoh_pick_place_pr2_reaches_its_goal(tmp_path):
     # one plan, no replan: a monitor's replan here once hid a held block hanging 6.6 cm below its grasp
     # (the sim's grasp constraint, fixed) that swept a standing block away
     assert result.replans == 0, [e for e in events if e["kind"] == "violation"]
-    assert sorted(a.split()[1] for a in result.actions if a.startswith("(place")) == ["block_a", "block_b", "block_c"]
+    placed = sorted(w.obj for w in map(parse_text, result.actions) if w.name == "place")
+    assert placed == ["block_a", "block_b", "block_c"]
     assert events[-1]["status"] == "succeeded"
 
 

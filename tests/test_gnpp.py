@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rlgp_exec.planning.actions import Kind, parse_text
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, using
 from rlgp_exec.planning.gnpp import GnppStatus, Logic, plan_gnpp
 from rlgp_exec.planning.gnpp.conflicts import Checker, ExtractOptions, find_conflict
@@ -310,7 +311,7 @@ def test_obstacle_tower_is_planned_not_declared_infeasible():
     res = plan_gnpp(load_scene(SCENES / "obstacles_tower_pr2.toml"), "gnpp_trn", timeout_s=120.0)
     assert res.status is GnppStatus.SOLVED, res.plan.reason
     assert res.plan.validation is not None and res.plan.validation.ok
-    moved = {a.split()[2] for a in res.plan.actions if a.startswith("(pick")}
+    moved = {w.obj for w in map(parse_text, res.plan.actions) if w.name == Kind.PICK}
     assert moved & {"o1", "o2"}, res.plan.actions  # an obstacle was cleared out of the region
 
 
@@ -405,7 +406,7 @@ def test_field_hsr_drives_between_the_tables_and_the_plan_is_validated():
     plan = res.plan
     assert plan.success and plan.validation is not None
     assert plan.validation.collision_free and plan.validation.goal_met
-    assert "(start-move arm)" in plan.actions and "(end-move arm)" in plan.actions
+    assert "(start-move)" in plan.actions and "(end-move)" in plan.actions  # one arm: not named
     assert any(f.kind == "EqualBase" for c in res.conflict_factors for f in c.factors)
     base = np.vstack([ph.path[:, :2] for ph in plan.phases])
     assert float(np.max(np.linalg.norm(base - base[0], axis=1))) > 1.0

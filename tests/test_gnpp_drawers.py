@@ -101,7 +101,7 @@ def test_gnpp_opens_a_drawer_end_to_end_and_the_replay_checks_it():
     refuse(scene, "gnpp_trn")  # accepted
     res = plan_gnpp(scene, timeout_s=60.0)
     assert res.status is GnppStatus.SOLVED, res.plan.reason
-    assert res.plan.actions == ("(take_knob arm cabinet)", "(open_drawer arm cabinet)")
+    assert res.plan.actions == ("(take_knob cabinet)", "(open_drawer cabinet)")  # one arm: not named
     v = res.plan.validation
     assert v is not None and v.collision_free and v.goal_met
     assert v.final_openings["cabinet"] == pytest.approx(0.3, abs=0.01)
@@ -115,5 +115,5 @@ def test_a_drawer_the_arm_cannot_reach_is_a_learnt_conflict_on_the_knob():
     res = plan_gnpp(scene, timeout_s=60.0)
     assert res.status is GnppStatus.SOLVED, res.plan.reason
     assert any(f.kind == "Knob" for c in res.conflict_factors for f in c.factors)
-    assert res.plan.actions[:3] == ("(start-move arm)", "(end-move arm)", "(take_knob arm cabinet)")
+    assert res.plan.actions[:3] == ("(start-move)", "(end-move)", "(take_knob cabinet)")
     assert res.plan.validation is not None and res.plan.validation.ok

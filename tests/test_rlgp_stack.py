@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, kind
+from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, kind, parse_text
 from rlgp_exec.planning.rlgp import _site, plan_scene, to_actions
 from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.validate import ON_TOLERANCE
@@ -22,8 +22,8 @@ BLOCKS = ("block_a", "block_b", "block_c")
 
 
 def parsed(plan) -> list[tuple[str, ...]]:
-    """A plan's actions as (name, object, target...) words, from their "(name obj target)" text."""
-    return [tuple(str(a).strip("()").split()) for a in plan.actions]
+    """A plan's actions as (name, object, target...) words, from their "(name [arm] obj target)" text."""
+    return [(w.name, w.obj, *([w.target] if w.target else [])) for w in map(parse_text, plan.actions)]
 
 
 def tower_scene():

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from rlgp_exec.executive.world import carried_along, stacks, update_scene
+from rlgp_exec.planning.actions import parse_text
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.keyframes import pinned_conflict
@@ -34,7 +35,7 @@ def scene(name: str):
 
 
 def words(plan) -> list[tuple[str, ...]]:
-    return [tuple(str(a).strip("()").split()) for a in plan.actions]
+    return [(w.name, w.obj, *([w.target] if w.target else [])) for w in map(parse_text, plan.actions)]
 
 
 def assert_rests_on(sc, poses, upper: str, lower: str) -> None:

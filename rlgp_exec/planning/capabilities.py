@@ -19,7 +19,8 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError, SceneError
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS
+from rlgp_exec.planning.actions import ACTION_KINDS as _ALL_KINDS
+from rlgp_exec.planning.actions import DRAWER_ACTIONS, GEOMETRIC_ACTIONS, GNPP_ACTIONS, MOVES, Kind
 from rlgp_exec.scene import Scene
 
 __all__ = [
@@ -37,8 +38,9 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-ACTION_KINDS = ("pick", "place", "stack", "drop", "take_knob", "open_drawer", "close_drawer", "pick_from_drawer")
-DRAWER_KINDS = frozenset({"drop", "take_knob", "open_drawer", "close_drawer", "pick_from_drawer"})
+#: the kinds a task may need (GNPP's base moves are its own means, never a task's need)
+ACTION_KINDS = tuple(k.name for k in _ALL_KINDS if k.name not in MOVES)
+DRAWER_KINDS = frozenset({*DRAWER_ACTIONS, Kind.DROP, Kind.PICK_FROM_DRAWER})
 _ROBOTS = frozenset({"hsr", "pr2"})
 
 
@@ -58,8 +60,7 @@ class Capability(NamedTuple):
 
 
 _RLGP = Capability(frozenset(GEOMETRIC_ACTIONS), _ROBOTS, "rlgp")  # R-LGP's layers read planning.actions
-_GNPP = Capability(frozenset({"pick", "place", "stack", "take_knob", "open_drawer", "close_drawer", "drop"}),
-                   _ROBOTS, "gnpp")
+_GNPP = Capability(frozenset(GNPP_ACTIONS) - set(MOVES), _ROBOTS, "gnpp")
 
 #: planner name -> what it can express; GNPP's variants share one entry
 CAPABILITIES: dict[str, Capability] = {
@@ -102,7 +103,7 @@ def needed_actions(scene: Scene) -> dict[str, str]:
 
     def to_cabinet(cab: str, why: str) -> None:  # the drawer must be open to reach in
         if scene.start.opening(cab) <= 0.0:
-            add(("take_knob", "open_drawer"), why)
+            add((Kind.TAKE_KNOB, Kind.OPEN_DRAWER), why)
 
     for lit in scene.goal.literals:
         if goal_holds(scene, lit, poses, openings)[0]:
@@ -111,19 +112,19 @@ def needed_actions(scene: Scene) -> dict[str, str]:
         if lit.predicate in ("on", "in"):
             o = scene.object(lit.args[0])
             if o.support.endswith(".drawer"):
-                add(("pick_from_drawer",), f"{text}: {o.name} starts in a drawer")
+                add((Kind.PICK_FROM_DRAWER,), f"{text}: {o.name} starts in a drawer")
                 to_cabinet(o.support.removesuffix(".drawer"), f"{text}: {o.name} starts in a closed drawer")
             elif o.name != scene.start.held:
-                add(("pick",), text)
+                add((Kind.PICK,), text)
         if lit.predicate == "on":
-            add(("stack",) if types.get(lit.args[1]) in ("movable", "slot") else ("place",), text)
+            add((Kind.STACK,) if types.get(lit.args[1]) in ("movable", "slot") else (Kind.PLACE,), text)
         elif lit.predicate == "in":
-            add(("drop",), text)
+            add((Kind.DROP,), text)
             to_cabinet(lit.args[1], text)
         elif lit.predicate == "open":
-            add(("take_knob", "open_drawer"), text)
+            add((Kind.TAKE_KNOB, Kind.OPEN_DRAWER), text)
         elif lit.predicate == "closed":
-            add(("take_knob", "close_drawer"), text)
+            add((Kind.TAKE_KNOB, Kind.CLOSE_DRAWER), text)
     return need
 
 

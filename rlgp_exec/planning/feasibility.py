@@ -102,7 +102,8 @@ def physical_refusals(scene: Scene) -> list[tuple[str, str]]:
     """Why the robot's first hand cannot hold an object the goal moves, one reason per object and rule
     (``planning.gripper_limits``: its open width and its fingertips' reach, probed once per robot; the
     scene rules' SIZE_MIN for scenes not read by the loader) as (object, reason); empty when none applies."""
-    from rlgp_exec.planning.gripper_limits import GRIP_CLEARANCE, gripper_limits, min_graspable_height
+    from rlgp_exec.planning.gripper_limits import gripper_limits, min_graspable_height
+    from rlgp_exec.planning.margins import RELEASE_CLEARANCE
     from rlgp_exec.scene.rules import SIZE_MIN
 
     limits = gripper_limits(scene.robot.name)
@@ -119,12 +120,12 @@ def physical_refusals(scene: Scene) -> list[tuple[str, str]]:
             reasons.append((name,
                 f"{name} is wider than the {robot}'s open gripper: its narrower side {width:.3f} m, the "
                 f"fingers open {limits.open_width_m:.3f} m at the grasp depth, so at most "
-                f"{limits.max_width_m:.3f} m fits with {GRIP_CLEARANCE * 1000:g} mm each side"
+                f"{limits.max_width_m:.3f} m fits with {RELEASE_CLEARANCE * 1000:g} mm each side"
             ))
         if o.size[2] < low:
             reasons.append((name,
                 f"{name} is shorter than the {robot}'s grasp needs: {o.size[2]:.3f} m tall, at least "
                 f"{low:.3f} m (the open fingertips reach {limits.tip_reach_m:.3f} m past the tool point, held "
-                f"at most half the height below the top, {GRIP_CLEARANCE * 1000:g} mm off the support)"
+                f"at most half the height below the top, {RELEASE_CLEARANCE * 1000:g} mm off the support)"
             ))
     return reasons

@@ -23,16 +23,15 @@ from typing import NamedTuple
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning.margins import RELEASE_CLEARANCE
 from rlgp_exec.planning.nlp.factors import GRASP_DEPTH
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix, quat_xyzw
 
-__all__ = ["GRIP_CLEARANCE", "GripperLimits", "gripper_limits", "min_graspable_height"]
+__all__ = ["GripperLimits", "gripper_limits", "min_graspable_height"]
 
 log = logging.getLogger(__name__)
 
-#: [m] an object let go keeps this from each open finger (the replay's contact tolerance and a margin)
-GRIP_CLEARANCE = 0.003
 _PROBE_LONG = 0.3  # [m] the probes' extent where only their near face matters
 _BISECTIONS = 24  # halvings of the probes' search interval: well below a millimetre
 
@@ -44,14 +43,14 @@ class GripperLimits(NamedTuple):
 
     @property
     def max_width_m(self) -> float:
-        """Widest footprint [m] the hand can close round and let go of with ``GRIP_CLEARANCE`` each side."""
-        return self.open_width_m - 2 * GRIP_CLEARANCE
+        """Widest footprint [m] the hand can close round and let go of with ``RELEASE_CLEARANCE`` each side."""
+        return self.open_width_m - 2 * RELEASE_CLEARANCE
 
 
 def min_graspable_height(limits: GripperLimits) -> float:
-    """Lowest object [m] whose support stays ``GRIP_CLEARANCE`` beyond the open fingertips when the tool point
+    """Lowest object [m] whose support stays ``RELEASE_CLEARANCE`` beyond the open fingertips when the tool point
     is at the grasp depth (``GRASP_DEPTH`` below the top, at most half the height)."""
-    need = max(limits.tip_reach_m + GRIP_CLEARANCE, 0.0)  # the tool point's least height above the support
+    need = max(limits.tip_reach_m + RELEASE_CLEARANCE, 0.0)  # the tool point's least height above the support
     return 2 * need if need <= GRASP_DEPTH else need + GRASP_DEPTH
 
 

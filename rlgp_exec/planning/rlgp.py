@@ -33,13 +33,12 @@ from typing import NamedTuple
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, RELEASES, Kind, kind
+from rlgp_exec.planning.actions import DRAWER_ACTIONS, GEOMETRIC_ACTIONS, RELEASES, Kind, kind
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, using
 from rlgp_exec.planning.capabilities import refuse
 from rlgp_exec.planning.feasibility import goal_manipulator, unreachable_goal
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.action import Action, target_surface
-from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS
 from rlgp_exec.planning.plan import Plan
 from rlgp_exec.planning.sequence import SequenceGeometry
 from rlgp_exec.planning.symbolic.errors import SymbolicError
@@ -151,7 +150,9 @@ class RGCost:
         self._costs: dict[bytes, float] = {}
         movable = {n for n, t in problem.objects if t == "movable"}
         self.goals = [(g, g[1], g[2]) for g in problem.goal if g[0] in ("on", "in")]
-        self.kind = {s: ("drop" if g[0] == "in" else "stack" if s in movable else "place") for g, _, s in self.goals}
+        self.kind = {
+            s: (Kind.DROP if g[0] == "in" else Kind.STACK if s in movable else Kind.PLACE) for g, _, s in self.goals
+        }
         self.arm = next((n for n, t in problem.objects if t == "manipulator"), "arm")
         self.stacking = Stacking(problem, {r.name for r in self.scene.regions})
         self._final = self._final_sites()

@@ -26,7 +26,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning import budget
-from rlgp_exec.planning.actions import Kind
+from rlgp_exec.planning.actions import DRAWER_ACTIONS, Kind, named_arm
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.memory import PlannerMemory
 from rlgp_exec.planning.nlp.action import Action
@@ -40,7 +40,7 @@ from rlgp_exec.planning.nlp.hand import (
     other_arm_obstacles,
 )
 from rlgp_exec.planning.nlp.keyframe_chunks import JOINT_ACTIONS, ChunkedKeyframes
-from rlgp_exec.planning.nlp.keyframes import DRAWER_ACTIONS, KeyframeResult, solve_keyframes
+from rlgp_exec.planning.nlp.keyframes import KeyframeResult, solve_keyframes
 from rlgp_exec.planning.nlp.path import T_DEFAULT, Segment, optimize_paths
 from rlgp_exec.planning.nlp.pick_fingers import palm_box_spheres
 from rlgp_exec.planning.plan import Level3Stats, Plan
@@ -126,6 +126,8 @@ class SequenceGeometry:
         # the keyframes': the chest and the other arms' shoulders, kept off the upper arm (an arm turned inwards)
         self.inner = inner_obstacles(self.checker.robot, self.model, self.q0)
         self.tool = self.model.manipulator().tool_frame
+        #: the arm as ``Plan.actions`` names it (None: the robot has one)
+        self.arm_named = named_arm([m.name for m in self.model.config.manipulators], self.model.manipulator().name)
         self.n_nlp = 0
         self.level3, self.T = level3, T
         self.l3 = Level3Stats()  # totals over this object's candidates
@@ -308,7 +310,7 @@ class SequenceGeometry:
     def _attempt(
         self, actions: list[Action], planner: str, nodes_expanded: int, t0: float, tilt: float
     ) -> Plan:
-        names = tuple(str(a) for a in actions)
+        names = tuple(a.text(self.arm_named) for a in actions)
         self.n_nlp += 1
         with self._stage("keyframes"):
             kf = self._keyframes(actions, tilt)

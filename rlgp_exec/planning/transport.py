@@ -15,7 +15,7 @@ import numpy as np
 
 from rlgp_exec.planning.detour import Footprint, detour, rect_distance
 from rlgp_exec.planning.drawers import DrawerView
-from rlgp_exec.planning.nlp.keyframes import FEAS_TOL
+from rlgp_exec.planning.margins import FEAS_TOL
 from rlgp_exec.reach import WorldChecker
 from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import base_circles

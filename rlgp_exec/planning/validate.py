@@ -28,6 +28,7 @@ import pybullet as p
 
 from rlgp_exec.planning import budget
 from rlgp_exec.planning.drawer_replay import DrawerMotion, drawer_literal_holds, settle
+from rlgp_exec.planning.margins import REPLAY_CONTACT
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.types import Literal
@@ -37,7 +38,7 @@ __all__ = ["Phase", "Validation", "goal_holds", "sample_path", "validate_plan", 
 log = logging.getLogger(__name__)
 ON_TOLERANCE = 0.01  # [m] an object "on" a surface: its bottom within this of the surface
 STEP = 0.01  # [rad or m] the replay's step per joint
-TOLERANCE = 2e-3  # [m] penetrations up to this deep are contacts, not collisions
+TOLERANCE = REPLAY_CONTACT  # [m] penetrations up to this deep are contacts, not collisions
 
 
 @dataclass(frozen=True)

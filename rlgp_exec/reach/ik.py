@@ -23,6 +23,7 @@ import numpy as np
 
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
+from rlgp_exec.planning.margins import FEAS_TOL, TOOL_POS_TOL
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import fixture_boxes
@@ -30,7 +31,7 @@ from rlgp_exec.scene.geometry import fixture_boxes
 __all__ = ["IKResult", "ReachIK", "arm_spheres", "base_circles"]
 
 log = logging.getLogger(__name__)
-POS_TOL = 2e-3  # [m] a node's q must put the tool within this of x0
+POS_TOL = TOOL_POS_TOL  # [m] a node's q must put the tool within this of x0
 MEMO_SIZE = 20_000  # IK answers remembered per solver (the same target and start recur within a plan)
 W_REG = 1e-4  # weight of the arm posture regulariser (small: it must not pull the tool off x0)
 # IPOPT's tolerance: 1e-5 finds the same nodes as 1e-6 (150 random targets per scene, pick_place_pr2,
@@ -257,6 +258,6 @@ class ReachIK:
             return IKResult(False, self.q_nominal, math.inf, math.inf, "NaN in the IK solution")
         if err > POS_TOL:
             return IKResult(False, self.q_of(z), float(res["f"]), err, f"tool {err * 1e3:.1f} mm from the target")
-        if g.size and np.any(g < np.asarray(self.g_lo) - 1e-4):
+        if g.size and np.any(g < np.asarray(self.g_lo) - FEAS_TOL):
             return IKResult(False, self.q_of(z), float(res["f"]), err, "the robot's shapes overlap a fixture")
         return IKResult(True, self.q_of(z), float(res["f"]), err, "ok")

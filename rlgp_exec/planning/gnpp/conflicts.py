@@ -19,7 +19,8 @@ from rlgp_exec.planning import budget
 from rlgp_exec.planning.gnpp.database import SubgraphDB
 from rlgp_exec.planning.gnpp.graph import PAPER_ORDER, Relaxation, components, relax, time_slice, times_of
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
-from rlgp_exec.planning.gnpp.solver import FEAS_TOL, RESTART_ABOVE, Feasibility, GraphSolver, SolveResult
+from rlgp_exec.planning.gnpp.solver import RESTART_ABOVE, Feasibility, GraphSolver, SolveResult
+from rlgp_exec.planning.margins import FEAS_TOL
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["Checker", "Conflict", "ExtractOptions", "find_conflict"]
@@ -191,7 +192,7 @@ def _convergence(check: Checker, g: list[Factor]) -> list[Factor]:
     those with the factors over their variables only, if that is infeasible; else ``g``."""
     if check.feasible(g) or check.last is None:
         return g
-    violated = [f for f, v in zip(g, check.last.violations, strict=True) if v > 1e-4]
+    violated = [f for f, v in zip(g, check.last.violations, strict=True) if v > FEAS_TOL]
     if not violated:
         return g
     # with the factors that only constrain the violated ones' variables (e.g. the Ref pinning an

@@ -16,6 +16,7 @@ import numpy as np
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning.gnpp.drawer_pntc import opening_atom
 from rlgp_exec.planning.gnpp.spots import free_spot
+from rlgp_exec.planning.margins import FEAS_TOL
 from rlgp_exec.planning.nlp.keyframes import DROP_HIGH, DROP_LOW
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
@@ -68,7 +69,7 @@ class KnobIK:
             res = solver(x0=np.clip(x0, lo, hi), lbx=lo, ubx=hi, lbg=lbg, ubg=ubg)
             qs = np.asarray(res["x"]).reshape(-1)
             gs = np.asarray(res["g"]).reshape(-1)
-            if np.all(gs >= lbg - 1e-4) and np.all(gs <= ubg + 1e-4):
+            if np.all(gs >= lbg - FEAS_TOL) and np.all(gs <= ubg + FEAS_TOL):
                 return True, qs
         return False, np.asarray(q_ref, float)
 

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rlgp_exec.planning.actions import DRAWER_ACTIONS as CABINET_ACTIONS
+from rlgp_exec.planning.actions import DRIVES, PICKS, Kind, opening_after
 from rlgp_exec.planning.gnpp.pntc import Var
 from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.transport import APPROACH
@@ -22,8 +24,8 @@ from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["APPROACH", "DRAWER_ACTIONS", "DRIVES", "DrawerState", "along_axis"]
 
-DRIVES = ("open_drawer", "close_drawer")
-DRAWER_ACTIONS = ("take_knob", *DRIVES, "drop")
+#: the kinds GNPP's drawer factors handle: those with a cabinet argument
+DRAWER_ACTIONS = (*CABINET_ACTIONS, Kind.DROP)
 
 
 def along_axis(lib, cabinet: str, q: FloatArray, distance: float) -> FloatArray:
@@ -56,8 +58,8 @@ class DrawerState:
         """The state after action ``a``."""
         if a.name in DRIVES:
             c = a.args[1]
-            self.openings[c] = lib.drawers[c].travel if a.name == "open_drawer" else 0.0
-        elif a.name == "drop":
+            self.openings[c] = opening_after(a.name, lib.drawers[c].travel)
+        elif a.name == Kind.DROP:
             self.inside[a.args[1]] = a.args[2]
-        elif a.name in ("pick", "pick_from_drawer"):
+        elif a.name in PICKS:
             self.inside.pop(a.args[1], None)

@@ -5,13 +5,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from rlgp_exec.planning.actions import MOVES  # the paper's move operators (a mobile arm's base)
 from rlgp_exec.planning.symbolic.model import Atom
 from rlgp_exec.planning.symbolic.reformulate import PartialState
 
 __all__ = ["COLLISION", "COUPLING_COLLISION", "INITIAL", "MOVES", "TIME", "Factor", "Var", "partial_state"]
 
 INITIAL: Atom = ("initial-state",)
-MOVES = ("start-move", "end-move")  # the paper's move operators (a mobile arm's base)
 COLLISION = ("ColFix", "ColAA", "ColAO", "ColHO", "ColOO")
 #: the collision factors the "No Col" relaxation removes: those between two variables, which make a time
 #: step's graph dense (paper Sec. VIII-B). ColFix (one arm against the fixed world, with the PR2's

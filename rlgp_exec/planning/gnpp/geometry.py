@@ -34,7 +34,7 @@ from rlgp_exec.planning.capabilities import beyond_reach
 from rlgp_exec.planning.gnpp.drawer_geometry import DROP_MARGIN, DrawerFactors
 from rlgp_exec.planning.gnpp.held_pose import rel_pose as _rel_pose
 from rlgp_exec.planning.gripper_limits import gripper_limits
-from rlgp_exec.planning.margins import BASE_MARGIN, PLACE_LIFT
+from rlgp_exec.planning.margins import BASE_MARGIN, PLACE_LIFT, RELEASE_CLEARANCE
 from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.nlp.factors import (
     GRASP_DEPTH,
@@ -79,7 +79,6 @@ PAN_OUT_MAX = 1.1
 #: (PR2) the open fingertips' inner faces this far from the tool point along the closing axis [m]:
 #: probed in the PyBullet model at the 0.5 rad finger opening every plan keeps
 FINGER_INNER = 0.0375
-FINGER_CLEAR = 0.003  # [m] an object let go keeps this much from the open fingers (replay tolerance 2 mm)
 FINGER_UP = 0.025  # [m] the second point of each open finger, this far above its tip (PR2 finger links)
 STACK_TOL = 0.012  # [m] a stacked object's centre within this of its parent's axis (x and y)
 FLOOR = 3.0  # [m] a mobile base's x and y stay within +-FLOOR of the world origin (as objects' poses do)
@@ -269,11 +268,11 @@ class FactorLib(DrawerFactors):
 
     def grasp_offset_max(self, obj: str) -> float:
         """How far [m] the object's centre may sit off the tool point along the closing axis: within the
-        finger pads, and so that the open fingers (``FINGER_INNER``) stay ``FINGER_CLEAR`` off its faces
+        finger pads, and so that the open fingers (``FINGER_INNER``) stay ``RELEASE_CLEARANCE`` off its faces
         once it is let go (the hand lifts off past it). Negative: wider than the open gripper."""
         half = min(self.objects[obj].size[:2]) / 2
         # an object narrower than the pads is held at its centre: no offset, not "wider"
-        return min(max(half - 0.015, 0.0), self.finger_inner - half - FINGER_CLEAR)
+        return min(max(half - 0.015, 0.0), self.finger_inner - half - RELEASE_CLEARANCE)
 
     def too_wide(self) -> dict[str, float]:
         """Objects wider than the open gripper (``gripper_limits``: the rule the planners' entry check

@@ -13,11 +13,12 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.ipopt import LEAN
-from rlgp_exec.planning.gnpp.geometry import MAX_TILT, PLACE_LIFT, FactorLib
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, FactorLib
 from rlgp_exec.planning.gnpp.lm import TOL as LM_TOL
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 from rlgp_exec.planning.gnpp.pntc import Factor, Var, moving, parents
 from rlgp_exec.planning.gnpp.spots import free_spot as _free_spot
+from rlgp_exec.planning.margins import FEAS_TOL, PLACE_LIFT, TOOL_POS_TOL
 from rlgp_exec.planning.symbolic.model import SymbolicState
 from rlgp_exec.robot.model import FloatArray
 
@@ -121,7 +122,7 @@ class TopIK:
             q = np.asarray(res["x"]).reshape(-1)
             g = np.asarray(res["g"]).reshape(-1)
             err = np.linalg.norm(self.lib.tool_T(arm, q)[:3, 3] - pos)
-            if err < 2e-3 and np.all(g >= lbg - 1e-4) and np.all(g <= ubg + 1e-4):
+            if err < TOOL_POS_TOL and np.all(g >= lbg - FEAS_TOL) and np.all(g <= ubg + FEAS_TOL):
                 out = (True, q)
                 break
         if not out[0] and not self.lib.mobile:

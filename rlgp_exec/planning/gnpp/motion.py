@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from rlgp_exec.planning.actions import Kind
 from rlgp_exec.planning.gnpp.drawer_motion import APPROACH, DRIVES, DrawerState, along_axis
 from rlgp_exec.planning.gnpp.geometry import FLOOR, LIFT, FactorLib
 from rlgp_exec.planning.gnpp.guess import TopIK, rel_T
@@ -249,7 +250,7 @@ def phases_of(
             phases.append(Phase(np.array(leave), None, knob=c, arm=m, carried=carried))
             drawers.after(lib, a)
             continue
-        if a.name == "take_knob":  # onto the knob along the drawer's axis, from APPROACH out
+        if a.name == Kind.TAKE_KNOB:  # onto the knob along the drawer's axis, from APPROACH out
             c, q_k = a.args[1], values[v]
             resting = {o: drawers.world(lib, o, values, k) for o in lib.objects if o not in holding.values()}
             transits.append(Transit(len(phases), len(path) - 1, m, None, resting))
@@ -274,11 +275,11 @@ def phases_of(
             path.append(full())
         keyframes.append(full())
         low[m] = True
-        if a.name == "pick":
+        if a.name == Kind.PICK:
             phases.append(Phase(np.array(path), None, grasp=obj, arm=m, carried=carried, action=k))
             holding[m] = obj
         else:  # place, stack; a drop's object falls into the drawer
-            phases.append(Phase(np.array(path), obj, release=obj, fall=a.name == "drop", arm=m, carried=carried,
+            phases.append(Phase(np.array(path), obj, release=obj, fall=a.name == Kind.DROP, arm=m, carried=carried,
                                 action=k))
             holding.pop(m, None)
         drawers.after(lib, a)

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.actions import GNPP_ACTIONS, Kind, ground_text
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, cpu_clock, using
 from rlgp_exec.planning.capabilities import beyond_reach, refuse
 from rlgp_exec.planning.gnpp.conflicts import (
@@ -35,12 +36,11 @@ from rlgp_exec.planning.gnpp.conflicts import (
     find_conflict,
 )
 from rlgp_exec.planning.gnpp.database import SubgraphDB
-from rlgp_exec.planning.gnpp.drawer_motion import DRAWER_ACTIONS
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
-from rlgp_exec.planning.gnpp.pntc import MOVES, Var, add_flags, add_moves, factors_of
+from rlgp_exec.planning.gnpp.pntc import Var, add_flags, add_moves, factors_of
 from rlgp_exec.planning.gnpp.repair import repair_transits
 from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
@@ -75,9 +75,8 @@ VARIANTS: dict[str, ExtractOptions | None] = {
     "gnpp_trng": ExtractOptions(time_search=True, relaxations=True, convergence=True, database=True),
     "oneway": None,
 }
-#: the actions the graph-NLP has factors for (``pntc``, the drawers' ``drawer_pntc``); the task's others
-#: (pick_from_drawer) are left out of its logic
-GEOMETRIC = ("pick", "place", "stack", *DRAWER_ACTIONS, *MOVES)
+#: the actions the graph-NLP has factors for; the task's others (pick_from_drawer) are left out of its logic
+GEOMETRIC = GNPP_ACTIONS
 
 
 class Logic(enum.Enum):
@@ -213,7 +212,7 @@ def _plan(
     task = dataclasses.replace(task, operators=tuple(op for op in task.operators if op.action.name in GEOMETRIC))
     wide = lib.too_wide()
     if wide:  # no pick of them: a plan that needs one ends "infeasible", with this reason
-        ops = tuple(op for op in task.operators if not (op.action.name == "pick" and op.action.args[1] in wide))
+        ops = tuple(op for op in task.operators if not (op.action.name == Kind.PICK and op.action.args[1] in wide))
         task = dataclasses.replace(task, operators=ops)
         log.warning("%s: wider than the open gripper, not picked: %s", scene.name, wide)
     objects = [o.name for o in scene.objects]
@@ -368,7 +367,7 @@ def _realise(
     return Plan(
         validation.ok,
         variant,
-        tuple(str(a) for a in actions),
+        tuple(ground_text(a.name, a.args, len(lib.arms) > 1) for a in actions),
         keyframes,
         tuple(phases),
         time.perf_counter() - t0,

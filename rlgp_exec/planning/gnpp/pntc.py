@@ -50,6 +50,7 @@ import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
 
+from rlgp_exec.planning.actions import PICKS
 from rlgp_exec.planning.gnpp.factor import INITIAL, MOVES, Factor, Var
 from rlgp_exec.planning.gnpp.factor import partial_state as _ps
 from rlgp_exec.planning.symbolic.model import Atom, GroundAction, GroundProblem, Operator, SymbolicState
@@ -62,7 +63,7 @@ def add_flags(problem: GroundProblem) -> GroundProblem:
     ops = []
     for op in problem.operators:
         dels = set(op.delete) | {INITIAL}
-        if op.action.name in ("pick", "pick_from_drawer"):
+        if op.action.name in PICKS:
             dels.add(("at-init", op.action.args[1]))
         ops.append(Operator(op.action, op.pre, op.pre_neg, op.add, frozenset(dels), op.cond_effects))
     init = problem.init | {INITIAL} | {("at-init", o) for o in objects}

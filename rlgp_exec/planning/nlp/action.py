@@ -1,42 +1,24 @@
-"""A symbolic action as the geometric layers read it, and the surface a place or stack targets."""
+"""A symbolic action as the geometric layers read it (the surface a place or stack targets is the place
+kind's: ``planning.actions.target_surface``, re-exported here)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
-from rlgp_exec.errors import RlgpError
-from rlgp_exec.robot.model import FloatArray
-from rlgp_exec.scene import Scene
+from rlgp_exec.planning.actions import action_text, target_surface
 
 __all__ = ["Action", "target_surface"]
 
 
 @dataclass(frozen=True)
 class Action:
-    name: str  # an action kind (``planning.actions``)
+    name: str  # an action kind (``planning.actions.Kind``)
     obj: str  # the object; the cabinet for take_knob, open_drawer, close_drawer
     target: str | None = None  # place: a region or a fixture; stack: a region or a movable; drop: the cabinet
 
     def __str__(self) -> str:
-        return f"({self.name} {self.obj}{' ' + self.target if self.target else ''})"
+        return action_text(self.name, self.obj, self.target)
 
-
-
-def target_surface(scene: Scene, target: str) -> tuple[FloatArray, tuple[float, float], float]:
-    """(T of the target rectangle's centre (4, 4), its half extents, its surface height [m])."""
-    for r in scene.regions:
-        if r.name == target:
-            fx = scene.fixture(r.on)
-            T = fx.T.copy()
-            T[:3, 3] = (fx.T @ np.array([r.offset[0], r.offset[1], fx.size[2] / 2, 1.0]))[:3]
-            return T, (r.size[0] / 2, r.size[1] / 2), float(T[2, 3])
-    try:
-        fx = scene.fixture(target)
-    except KeyError:
-        valid = sorted([r.name for r in scene.regions] + [f.name for f in scene.fixtures])
-        raise RlgpError(f"place target {target!r} is not a region or fixture; valid: {valid}") from None
-    T = fx.T.copy()
-    T[2, 3] += fx.size[2] / 2
-    return T, (fx.size[0] / 2, fx.size[1] / 2), float(T[2, 3])
+    def text(self, arm: str | None) -> str:
+        """As ``Plan.actions`` writes it: ``arm`` named (the robot has more than one), or not (None)."""
+        return action_text(self.name, self.obj, self.target, arm)

@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 import pybullet as p
 
+from rlgp_exec.planning.margins import SELF_MARGIN
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
 from rlgp_exec.reach.ik import arm_spheres, box_sdf, box_sdf_columns
 from rlgp_exec.robot.model import FloatArray
@@ -400,7 +401,7 @@ def other_arm_obstacles(robot, model, q: FloatArray, manipulator: str | None = N
 
 
 def self_clear(model, q_sym: ca.SX, spheres: list[tuple[str, FloatArray, float]], body: list[tuple[str, Box]],
-               rows: Rows, margin: float = 0.01) -> None:
+               rows: Rows, margin: float = SELF_MARGIN) -> None:
     """The arm's spheres clear of the body's boxes (each box in its link's frame), at the configuration
     q_sym (``_self_rows``' rows)."""
     if not spheres or not body:
@@ -467,7 +468,8 @@ def _content_key(items: Sequence) -> bytes:
 
 
 def self_rows_function(
-    model, spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]], margin: float = 0.01
+    model, spheres: Sequence[tuple[str, FloatArray, float]], body: Sequence[tuple[str, Box]],
+    margin: float = SELF_MARGIN,
 ) -> SelfRows:
     """``self_clear``'s rows as a ``SelfRows`` (the transforms in, the rows out). Built once per model and
     arguments (the ``SELF_ROWS_KEPT`` latest are kept), then shared (read-only): the keyframe NLP and level 3

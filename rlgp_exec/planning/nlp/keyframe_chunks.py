@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from rlgp_exec.planning.actions import DRIVES, PUT_DOWN
 from rlgp_exec.planning.nlp.action import Action
 from rlgp_exec.planning.nlp.keyframes import KeyframeResult
 from rlgp_exec.robot.model import FloatArray
@@ -32,7 +33,7 @@ log = logging.getLogger(__name__)
 JOINT_ACTIONS = 8  # sequences up to the longest shipped task's length are solved jointly
 CHUNK_ACTIONS = 2  # longer ones a pick and its put-down at a time: a failing pair is then named exactly
 #: actions after which the hand is empty (a chunk may end there)
-HAND_EMPTY_AFTER = ("place", "stack", "drop", "open_drawer", "close_drawer")
+HAND_EMPTY_AFTER = (*PUT_DOWN, *DRIVES)
 _CACHES = 8  # chunk NLPs kept for a retry from the same start (another tilt)
 
 #: ``solve(scene, q_start, actions, max_tilt, cache)``: one keyframe NLP (``solve_keyframes`` with the caller's

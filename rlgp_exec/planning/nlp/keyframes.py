@@ -41,7 +41,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
-from rlgp_exec.planning.actions import GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN, Kind
+from rlgp_exec.planning.actions import DRAWER_ACTIONS, GEOMETRIC_ACTIONS, MOVES_OBJECT, RELEASES, SETS_DOWN, Kind
 from rlgp_exec.planning.detour import rect_distance
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.margins import BASE_MARGIN, FEAS_TOL, PLACE_LIFT
@@ -91,9 +91,9 @@ DROP_GAP = 0.05  # [m] between objects dropped into one drawer: a fall lands a f
 DROP_LOW, DROP_HIGH = -0.06, 0.02  # [m] a dropped object's bottom between these heights from the drawer's rim
 CURVATURE_FREE = ("clearance", "base footprint")  # rows (by label ending) whose curvature IPOPT's Hessian leaves out
 ACTIONS = GEOMETRIC_ACTIONS
-DRAWER_ACTIONS = ("take_knob", "open_drawer", "close_drawer")
-KIND = {"pick": "grasp", "place": "placement", "take_knob": "knob grasp", "open_drawer": "knob",
-        "close_drawer": "knob", "drop": "drop", "stack": "stacking"}
+#: each kind's rows, as the labels name them
+KIND: dict[str, str] = {Kind.PICK: "grasp", Kind.PLACE: "placement", Kind.TAKE_KNOB: "knob grasp",
+                        Kind.OPEN_DRAWER: "knob", Kind.CLOSE_DRAWER: "knob", Kind.DROP: "drop", Kind.STACK: "stacking"}
 STACK_SLACK = 0.01  # [m] a stacked object's centre may stray this far past the support's footprint less its own
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from rlgp_exec.planning.actions import Kind
+from rlgp_exec.planning.actions import PICKS, Kind
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 from rlgp_exec.planning.symbolic.search import CostFn, Heuristic
 from rlgp_exec.scene.types import Scene
@@ -79,7 +79,7 @@ def distance_cost(scene: Scene, per_action: float = 1.0, per_metre: float = 1.0)
     start = (scene.robot.base[0], scene.robot.base[1])
 
     def site_of(action: GroundAction, where: dict[str, tuple[float, float]]) -> tuple[float, float]:
-        if action.name in ("pick", "pick_from_drawer"):
+        if action.name in PICKS:
             return where.get(action.args[1], start)
         return where.get(action.args[-1], start)
 

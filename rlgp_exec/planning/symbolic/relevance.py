@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import replace
 
-from rlgp_exec.planning.actions import Kind
+from rlgp_exec.planning.actions import PUT_DOWN, Kind
 from rlgp_exec.planning.symbolic.model import GroundProblem, Operator
 
 __all__ = ["PUT_DOWN", "SURFACE_TYPES", "without_detours"]
@@ -26,7 +26,6 @@ log = logging.getLogger(__name__)
 #: the types a ``place`` needs nothing of (any number of objects fit)
 SURFACE_TYPES = ("surface", "cabinet")
 #: the actions that leave an object somewhere: (object, support) are their arguments 1 and 2
-PUT_DOWN = ("place", "stack", "drop")
 
 
 def without_detours(problem: GroundProblem) -> GroundProblem:

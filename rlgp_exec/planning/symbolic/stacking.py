@@ -30,7 +30,7 @@ __all__ = ["ONE_OBJECT", "Stacking", "supports"]
 
 #: the support types that take one object, on top, only while clear
 ONE_OBJECT = ("slot", "movable")
-_PUT_DOWN = ("place", "stack")
+_PUT_DOWN = (Kind.PLACE, Kind.STACK)
 
 
 def supports(state: SymbolicState) -> dict[str, str]:
@@ -103,7 +103,7 @@ class Stacking:
         if not self.active or not prefix:
             return False
         a = prefix[-1]
-        if a.name not in ("pick", *_PUT_DOWN) or len(a.args) < 3:
+        if a.name not in (Kind.PICK, *_PUT_DOWN) or len(a.args) < 3:
             return False
         o, s = a.args[1], a.args[2]
         on = supports(state)
