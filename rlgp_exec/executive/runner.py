@@ -8,7 +8,9 @@ poses come from the scene file and the result says the goal was not verified).
 ``RunOptions.objects`` chooses the object source: ``camera`` (zenoh: AprilTags in the head camera's
 images, :class:`~rlgp_exec.executive.camera_source.CameraObjects`), ``mocap`` (zenoh: ``ZenohMocap``;
 sim: the simulation's truth), ``file`` (the scene file's poses, sensing nothing), or None for the
-backend's default (sim: its truth, zenoh: camera, can: file).
+backend's default (sim: its truth, zenoh: camera, can: file). With the camera in the loop, the recording
+and the live view also get the camera's images, thinned to ``RunOptions.camera_record_hz``
+(:class:`~rlgp_exec.executive.camera_record.CameraTap`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.camera_record import DEFAULT_RATE_HZ, CameraTap
 from rlgp_exec.executive.executive import Executive, TaskResult
 from rlgp_exec.executive.recorder import Recorder, RecordSink
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
@@ -52,6 +55,7 @@ class RunOptions:
     objects: str | None = None  # one of OBJECT_SOURCES; None: the backend's default
     limits: PlanLimits = DEFAULT_LIMITS  # the planner's CPU-time budget and search expansions, every plan
     foxglove: int | None = None  # serve the run live to Foxglove on this port (None: not)
+    camera_record_hz: float = DEFAULT_RATE_HZ  # [Hz] camera images recorded and served (robot clock); 0: none
 
 
 def object_source_name(opts: RunOptions) -> str:
@@ -132,6 +136,9 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         hal, objects = connect(scene, opts)
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
+        if sink is not None and opts.camera_record_hz > 0 and object_source_name(opts) == "camera":
+            tap = CameraTap(sink, hal.session, hal.keys, opts.camera_record_hz)  # type: ignore[attr-defined]
+            stack.callback(tap.close)  # before the recorder closes (entered first, closed last)
         if isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
