@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mcap_ros2.reader import read_ros2_messages
 
-from rlgp_exec.executive.camera_record import CameraTap, camera_topics
+from rlgp_exec.executive.camera_record import COMPRESSED, CameraTap, camera_topics
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal import ros_image as ri
 from rlgp_exec.hal.ros_codec import Rejected
@@ -197,3 +197,44 @@ def test_bad_camera_payloads_are_counted_not_raised():
     assert not isinstance(frame, Rejected)
     assert frame.size == (640, 480)
     assert frame.stamp == pytest.approx(6.0 + tap._offset(), abs=1e-6) and tap._offset() > 1e9  # the wall's clock
+
+
+def test_frames_arriving_while_one_is_written_replace_each_other_and_are_counted():
+    """The camera's callback never waits on the worker: while a write is held up, the newest frame
+    waits in the slot, the ones it replaced are counted as dropped, and a frame within the period is
+    thinned."""
+    keys = load_key_map("hsr")
+    cam = camera_for_robot("hsr")
+    release = threading.Event()
+
+    class _SlowSink(_Sink):
+        def write_ros(self, topic, typename, payload, t_wall):
+            release.wait(10.0)
+            super().write_ros(topic, typename, payload, t_wall)
+
+    sink, session = _SlowSink(), _Session()
+    tap = CameraTap(sink, session, keys, rate_hz=2.0)
+
+    def put(key: str, payload: bytes) -> None:
+        session.callbacks[key](_sample(key, payload))  # type: ignore[operator]
+
+    rgb = np.zeros((cam.height, cam.width, 3), np.uint8)
+    try:
+        put(keys["joint_states"].key, rc.encode_joint_state(0.0, ["head_pan_joint"], [0.0], [0.0]))
+        put(keys["camera_info"].key, ri.encode_camera_info(0.0, "cam", cam.width, cam.height, cam.K))
+        put(keys["camera_image"].key, ri.encode_image(1.0, "cam", rgb))
+        end = time.monotonic() + 10.0
+        while tap._last_kept != 1.0 and time.monotonic() < end:  # the worker holds frame 1.0 in its write
+            time.sleep(0.01)
+        for stamp in (1.2, 2.0, 3.0, 4.0):  # 1.2: within 0.5 s of 1.0; the others replace each other
+            put(keys["camera_image"].key, ri.encode_image(stamp, "cam", rgb))
+        assert tap.stats()["dropped"] == 2 and tap.stats()["thinned"] == 1 and not sink.ros
+        release.set()
+        while tap.stats()["written"] < 2 and time.monotonic() < end:
+            time.sleep(0.01)
+    finally:
+        release.set()
+        tap.close()
+    stamps = [ri.parse_compressed(p).stamp - tap._offset() for _, t, p, _ in sink.ros if t == COMPRESSED]
+    assert stamps == pytest.approx([1.0, 4.0], abs=1e-6)
+    assert tap.stats() == {"received": 5, "thinned": 1, "dropped": 2, "written": 2, "rejected": {}}
