@@ -87,11 +87,15 @@ class CameraTap:
         self._offset_lock = threading.Lock()
         self._worker = threading.Thread(target=self._run, name="camera-record", daemon=True)
         self._worker.start()
-        self._subs = [
-            session.declare_subscriber(keys[name].key, guarded(self.rejects, name, fn, keys[name].key))
+        self._subs: list[Any] = []
+        try:
             for name, fn in (("joint_states", self._on_state), ("camera_info", self._on_info),
-                             ("camera_image", self._on_image))
-        ]
+                             ("camera_image", self._on_image)):
+                key = keys[name].key
+                self._subs.append(session.declare_subscriber(key, guarded(self.rejects, name, fn, key)))
+        except BaseException:  # a session that refuses one: nothing left running
+            self.close()
+            raise
         log.info("camera recording: %s at %.3g Hz as %s", keys["camera_image"].key, rate_hz, self.image_topic)
 
     # ------------------------------------------------------------------ Zenoh's side (its threads)
