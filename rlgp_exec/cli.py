@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -435,6 +436,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         foxglove=args.foxglove,
         camera=args.camera,
         calibration=Path(args.calibration) if args.calibration else None,
+        **({} if args.camera_hz is None else {"camera_record_hz": args.camera_hz}),
     )
     record = opts.record
     if args.gui and record is None:  # the window plays the run back from its recording
@@ -910,6 +912,16 @@ def _limit_flags(s: argparse.ArgumentParser) -> None:
     )
 
 
+def _camera_hz(text: str) -> float:
+    try:
+        hz = float(text)
+    except ValueError:
+        hz = math.nan
+    if not (hz == 0 or 0 < hz <= 30):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a rate in (0, 30] Hz, or 0 for no images")
+    return hz
+
+
 def _objects_flag(s: argparse.ArgumentParser) -> None:
     s.add_argument(
         "--objects", choices=["camera", "mocap", "file"],
@@ -973,6 +985,9 @@ def build_parser() -> argparse.ArgumentParser:
     _json_flag(s, "the run's result")
     _gui_flag(s, "the run (from its recording, once it ends)")
     _foxglove_flag(s)
+    s.add_argument("--camera-hz", type=_camera_hz, default=None, metavar="HZ",
+                   help="with the camera in the loop (--objects camera): head camera images (JPEG) recorded and "
+                        "served per second of the robot's clock (default 2; 0: none)")
     _limit_flags(s)
     s.set_defaults(func=cmd_run)
 

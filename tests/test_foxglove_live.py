@@ -168,3 +168,33 @@ def test_a_busy_port_is_refused_clearly_and_the_option_parses(live):
         with pytest.raises(SystemExit) as e:
             parse(["run", "s.toml", "--foxglove", bad])
         assert e.value.code == 2
+
+
+def test_the_cameras_images_are_served_and_recorded_on_the_robots_topic(live, tmp_path):
+    from rlgp_exec.executive.camera_record import COMPRESSED, INFO
+    from rlgp_exec.hal import ros_image as ri
+    from rlgp_exec.hal.ros_codec import Rejected
+
+    topic = "/hsrb/head_rgbd_sensor/rgb/image_rect_color/compressed"
+    image = ri.encode_compressed(12.5, "head_rgbd_sensor_rgb_frame", np.full((48, 64, 3), 90, np.uint8))
+    info = ri.encode_camera_info(12.5, "head_rgbd_sensor_rgb_frame", 64, 48, np.eye(3))
+    client = WsClient(live.port)
+    client.until(_text("advertise"))
+    with Recorder(tmp_path / "run.mcap") as rec:
+        tee = Tee(rec, live)
+        tee.write_ros("/hsrb/head_rgbd_sensor/rgb/camera_info", INFO, info, time.time())
+        tee.write_ros(topic, COMPRESSED, image, time.time())
+        adv = client.until(lambda o, d: next((c for c in json.loads(d).get("channels", []) if c["topic"] == topic),
+                                             None) if o == 1 else None)
+        assert (adv["encoding"], adv["schemaName"], adv["schemaEncoding"]) == ("cdr", COMPRESSED, "ros2msg")
+        client.send_json({"op": "subscribe", "subscriptions": [{"id": 3, "channelId": adv["id"]}]})
+        time.sleep(0.3)  # the subscription reaches the server before the message
+        tee.write_ros(topic, COMPRESSED, image, time.time())
+        payload = client.until(lambda o, d: d[13:] if o == 2 and d[0] == 1 else None)
+    assert payload == image
+    frame = ri.parse_compressed(payload)
+    assert not isinstance(frame, Rejected) and frame.size == (64, 48)
+    r = read_recording(tmp_path / "run.mcap")
+    assert dict(r.derived) == {topic: 2, "/hsrb/head_rgbd_sensor/rgb/camera_info": 1} and r.messages == ()
+    with pytest.raises(RlgpError, match="only"):
+        live.write_ros("/tf", COMPRESSED, image, time.time())

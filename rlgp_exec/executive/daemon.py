@@ -46,9 +46,10 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError, SceneError
+from rlgp_exec.executive.camera_record import CameraTap
 from rlgp_exec.executive.executive import Executive, TaskResult, TaskStatus
 from rlgp_exec.executive.recorder import Recorder
-from rlgp_exec.executive.runner import RunOptions, connect
+from rlgp_exec.executive.runner import RunOptions, connect, object_source_name
 from rlgp_exec.executive.states import ExecState, Transition
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.literals import parse_goal
@@ -410,11 +411,20 @@ class Daemon:
             except (OSError, RlgpError) as e:  # the task runs; the status says it is not recorded
                 log.error("daemon: task %d not recorded: %s", task.id, e)
                 self.recording_error = f"task {task.id}: {e}"
+        tap = None
+        hz = self.run_opts.camera_record_hz
+        if recorder is not None and hz > 0 and object_source_name(self.run_opts) == "camera":
+            try:
+                tap = CameraTap(recorder, self._hal.session, self._hal.keys, hz)
+            except Exception as e:  # a session that refuses the subscription: the task is recorded without images
+                log.error("daemon: task %d recorded without the camera's images: %s", task.id, e)
         ex.attach(recorder)
         try:
             return ex.run(list(task.literals))
         finally:
             ex.attach(None)
+            if tap is not None:
+                tap.close()
             if recorder is not None:
                 recorder.close()
 

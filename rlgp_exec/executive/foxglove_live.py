@@ -2,9 +2,10 @@
 
 :class:`FoxgloveLive` takes the executive's records as a recorder does and serves what a recording's
 viewer channels hold (:mod:`~rlgp_exec.executive.ros_record`: the URDF, TF, joint states, odometry,
-the scene's and the plan's entities), from the same message builders, through foxglove-sdk's server
-(connect Foxglove to ``ws://HOST:PORT``). The messages a client needs however late it connects (the
-URDF, static TF, the scene and the plan) are sent again every ``LATCH_S``.
+the scene's and the plan's entities, the head camera's images when the camera is in the loop), from the
+same message builders, through foxglove-sdk's server (connect Foxglove to ``ws://HOST:PORT``). The
+messages a client needs however late it connects (the URDF, static TF, the scene and the plan) are sent
+again every ``LATCH_S``.
 
 :class:`Tee` hands each record to several sinks (a recording and the live view).
 """
@@ -21,6 +22,8 @@ from typing import Any
 import foxglove
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive import ros_messages as rm
+from rlgp_exec.executive.camera_record import CAMERA_TYPES
 from rlgp_exec.executive.recorder import RecordSink
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
@@ -92,6 +95,24 @@ class FoxgloveLive:
                     self._latched[(channel, topic)] = payload
                 self.channels[channel].log(payload, log_time=int(t * 1e9))
 
+    def write_ros(self, topic: str, typename: str, payload: bytes, t_wall: float) -> None:
+        """Serve the CDR ``payload`` of ``typename`` (one of ``CAMERA_TYPES``) on ``topic``, its first message
+        advertising the channel."""
+        if typename not in CAMERA_TYPES or topic in ROS_CHANNELS:
+            raise RlgpError(f"foxglove: {typename} on {topic!r}: only {list(CAMERA_TYPES)} on channels of their own")
+        with self._lock:
+            if self._stop.is_set():
+                return
+            channel = self.channels.get(topic)
+            if channel is None:
+                s = rm.ros_schema(typename)
+                channel = self.channels[topic] = foxglove.Channel(
+                    topic, message_encoding=s.message_encoding,
+                    schema=foxglove.Schema(name=s.name, encoding=s.encoding, data=s.text.encode()),
+                    context=self._context,
+                )
+            channel.log(payload, log_time=int(t_wall * 1e9))
+
     def _relatch(self) -> None:
         while not self._stop.wait(LATCH_S):
             with self._lock:
@@ -133,3 +154,8 @@ class Tee:
         t = time.time() if t_wall is None else t_wall  # one time for all: the same instant in each
         for s in self.sinks:
             s.write(topic, data, t)
+
+    def write_ros(self, topic: str, typename: str, payload: bytes, t_wall: float) -> None:
+        """A ROS 2 message to every sink that takes them (``write_ros``)."""
+        for s in self.sinks:
+            s.write_ros(topic, typename, payload, t_wall)

@@ -6,7 +6,10 @@ scene-file data), ``/robot_state``, ``/command`` (setpoints and base twists sent
 Beside them, what a viewer reads (:mod:`~rlgp_exec.executive.ros_record`): ROS 2 channels (``ros2msg``
 schemas, CDR) - ``/robot_description``, ``/tf``, ``/tf_static``, ``/joint_states``, ``/odom`` - and
 Foxglove scene entities (``/scene_entities``, ``/plan_path``), so Foxglove opens a recording as a robot
-in its world. Each is written with the record it comes from, at its time.
+in its world. Each is written with the record it comes from, at its time. When the executive senses by
+camera, :class:`~rlgp_exec.executive.camera_record.CameraTap` adds the head camera's frames through
+``write_ros``: ``sensor_msgs/msg/CompressedImage`` (JPEG) and ``sensor_msgs/msg/CameraInfo`` on channels
+named like the robot's topics.
 
 Messages are written unchunked and reach the file at least every ``FLUSH_S`` and after every transition,
 plan and event, so a killed process leaves a file that :func:`read_recording` reads up to the last
@@ -38,6 +41,8 @@ from typing import IO, Any, Protocol
 from mcap.writer import CompressionType, Writer
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive import ros_messages as rm
+from rlgp_exec.executive.camera_record import CAMERA_TYPES
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
 __all__ = [
@@ -88,11 +93,14 @@ def _json_default(o: Any) -> Any:
 
 
 class RecordSink(Protocol):
-    """What the executive records into: a :class:`Recorder`, a live view, both (``foxglove_live.Tee``)."""
+    """What the executive records into: a :class:`Recorder`, a live view, both (``foxglove_live.Tee``);
+    ``write_ros`` takes the camera's messages (``camera_record``)."""
 
     on_error: Callable[[str], None] | None
 
     def write(self, topic: str, data: dict[str, Any], t_wall: float | None = None) -> None: ...
+
+    def write_ros(self, topic: str, typename: str, payload: bytes, t_wall: float) -> None: ...
 
 
 class _Spool:
@@ -157,14 +165,13 @@ class Recorder:
         self._view_lock = threading.Lock()
         self._view_failed: set[str] = set()  # topics whose records could not be derived (logged once)
         self._last_state_view = -math.inf  # [s] wall time of the last robot state derived
+        self._schema_ids: dict[bytes, int] = {}
+        self._ros_types: dict[str, str] = {}  # channels added by write_ros: topic -> message type
         if viewer:
-            schema_ids: dict[bytes, int] = {}
             for ch in ROS_CHANNELS.values():
-                if ch.schema_data not in schema_ids:
-                    schema_ids[ch.schema_data] = self._w.register_schema(
-                        name=ch.schema_name, encoding=ch.schema_encoding, data=ch.schema_data)
                 self._channels[ch.topic] = self._w.register_channel(
-                    topic=ch.topic, message_encoding=ch.message_encoding, schema_id=schema_ids[ch.schema_data])
+                    topic=ch.topic, message_encoding=ch.message_encoding,
+                    schema_id=self._schema_id(ch.schema_name, ch.schema_encoding, ch.schema_data))
         self._last_flush = time.monotonic()
         with self._lock:
             if self._flush() is not None:  # the file cannot take its first bytes: nothing to record into
@@ -196,6 +203,42 @@ class Recorder:
                 self._w.add_message(self._channels[channel], log_time=t_ns, data=derived, publish_time=t_ns)
             now = time.monotonic()
             if topic in _URGENT or now - self._last_flush >= FLUSH_S or len(self._spool.buf) >= SPOOL_MAX:
+                self._last_flush = now
+                reason = self._flush()
+        if reason is not None:
+            self._report(reason)
+
+    def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
+        if data not in self._schema_ids:
+            self._schema_ids[data] = self._w.register_schema(name=name, encoding=encoding, data=data)
+        return self._schema_ids[data]
+
+    def write_ros(self, topic: str, typename: str, payload: bytes, t_wall: float) -> None:
+        """Record the CDR ``payload`` of ``typename`` (one of ``CAMERA_TYPES``) on the channel ``topic``, its
+        first message registering it; raises only when called wrongly, like ``write``."""
+        if typename not in CAMERA_TYPES:
+            raise RecordingError(
+                f"recording {topic}: message type {typename!r} not recorded; valid: {list(CAMERA_TYPES)}")
+        if not topic.startswith("/") or topic in CHANNELS or topic in ROS_CHANNELS:
+            raise RecordingError(f"recording: {topic!r} is not a free channel name (it starts with '/', it is not "
+                                 f"one of the executive's or the viewer's)")
+        if not (math.isfinite(t_wall) and 0.0 <= t_wall < 1.8e10):
+            raise RecordingError(f"recording {topic}: t_wall must be a wall time [s] >= 0, got {t_wall!r}")
+        if self._ros_types.setdefault(topic, typename) != typename:
+            raise RecordingError(f"recording {topic}: a {typename} on a channel of {self._ros_types[topic]}")
+        t_ns = int(t_wall * 1e9)
+        reason = None
+        with self._lock:
+            if self._fd is None:
+                return
+            if topic not in self._channels:
+                s = rm.ros_schema(typename)
+                self._channels[topic] = self._w.register_channel(
+                    topic=topic, message_encoding=s.message_encoding,
+                    schema_id=self._schema_id(s.name, s.encoding, s.text.encode()))
+            self._w.add_message(self._channels[topic], log_time=t_ns, data=payload, publish_time=t_ns)
+            now = time.monotonic()
+            if now - self._last_flush >= FLUSH_S or len(self._spool.buf) >= SPOOL_MAX:
                 self._last_flush = now
                 reason = self._flush()
         if reason is not None:
@@ -301,7 +344,7 @@ class Recording:
     truncated_at: int | None = None  # unfinished: the offset [bytes] where reading stopped
     size: int = 0  # [bytes]
     offsets: tuple[int, ...] = ()  # each message's record offset [bytes], to name it in errors
-    #: messages on each viewer channel (ROS 2, scene entities): written for viewers, not replayed
+    #: messages on each viewer channel (ROS 2, scene entities, camera): written for viewers, not replayed
     derived: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
 
     def topic(self, name: str) -> list[tuple[float, dict[str, Any]]]:
@@ -377,6 +420,7 @@ class _Reader:
         self.messages: list[tuple[str, float, dict[str, Any]]] = []
         self.offsets: list[int] = []
         self.derived: dict[str, int] = {}
+        self.camera: set[str] = set()  # the channels of camera messages (topics the robot names)
         self.data_end = False
 
     def _error(self, off: int, op: int, msg: str) -> RecordingError:
@@ -468,15 +512,21 @@ class _Reader:
             raise _MalformedError(
                 f"channel {cid} ({topic}) refers to schema {schema_id}, which no Schema record before it declares"
             )
-        if topic not in CHANNELS and topic not in ROS_CHANNELS:
+        schema = self.schemas.get(schema_id, ("", "", b""))
+        camera = (topic not in CHANNELS and topic not in ROS_CHANNELS
+                  and schema[:2] in {(t, "ros2msg") for t in CAMERA_TYPES})
+        if topic not in CHANNELS and topic not in ROS_CHANNELS and not camera:
             raise _MalformedError(
-                f"channel {cid}: topic {topic!r} is not a recording channel {[*CHANNELS, *ROS_CHANNELS]}"
+                f"channel {cid}: topic {topic!r} is not a recording channel {[*CHANNELS, *ROS_CHANNELS]}, "
+                f"nor a camera channel (schema {schema[0] or 'none'!r}; camera channels: ros2msg {list(CAMERA_TYPES)})"
             )
-        expected = "json" if topic in CHANNELS else ROS_CHANNELS[topic].message_encoding
+        expected = "json" if topic in CHANNELS else "cdr" if camera else ROS_CHANNELS[topic].message_encoding
         if encoding != expected:
             raise _MalformedError(f"channel {cid} ({topic}): message encoding {encoding!r}, expected {expected!r}")
         if self.channels.setdefault(cid, (topic, encoding, schema_id)) != (topic, encoding, schema_id):
             raise _MalformedError(f"channel {cid} declared again as {topic!r}, first as {self.channels[cid][0]!r}")
+        if camera:
+            self.camera.add(topic)
 
     def _message(self, off: int, r: _Fields) -> None:
         cid, _, log_time, _ = struct.unpack("<HIQQ", r.take(22, "channel id, sequence and times"))
@@ -486,7 +536,7 @@ class _Reader:
         topic = self.channels[cid][0]
         if self.data_end:
             raise _MalformedError(f"({topic}) after the DataEnd record: messages belong in the data section")
-        if topic in ROS_CHANNELS:  # a viewer's message: counted, not replayed (the records hold it all)
+        if topic in ROS_CHANNELS or topic in self.camera:  # a viewer's message: counted, not replayed
             self.derived[topic] = self.derived.get(topic, 0) + 1
             return
         try:

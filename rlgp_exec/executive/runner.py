@@ -9,7 +9,9 @@ poses come from the scene file and the result says the goal was not verified).
 images, :class:`~rlgp_exec.executive.camera_source.CameraObjects`), ``mocap`` (zenoh: ``ZenohMocap``;
 sim: the simulation's truth), ``file`` (the scene file's poses, sensing nothing), or None for the
 backend's default (sim: its truth, zenoh: camera, can: file). ``RunOptions.camera`` and ``calibration``
-put a local camera (an OpenCV device or video file) in place of the robot's camera topics.
+put a local camera (an OpenCV device or video file) in place of the robot's camera topics. With the
+robot's camera in the loop, the recording and the live view also get its images, thinned to
+``RunOptions.camera_record_hz`` (:class:`~rlgp_exec.executive.camera_record.CameraTap`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.camera_record import DEFAULT_RATE_HZ, CameraTap
 from rlgp_exec.executive.executive import Executive, TaskResult
 from rlgp_exec.executive.recorder import Recorder, RecordSink
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
@@ -55,6 +58,7 @@ class RunOptions:
     foxglove: int | None = None  # serve the run live to Foxglove on this port (None: not)
     camera: str | None = None  # camera objects from a local device or video file, not the robot's topics
     calibration: Path | None = None  # ... with its OpenCV or ROS calibration file
+    camera_record_hz: float = DEFAULT_RATE_HZ  # [Hz] camera images recorded and served (robot clock); 0: none
 
 
 def object_source_name(opts: RunOptions) -> str:
@@ -156,6 +160,9 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         hal, objects = connect(scene, opts)
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
+        if sink is not None and opts.camera_record_hz > 0 and object_source_name(opts) == "camera":
+            tap = CameraTap(sink, hal.session, hal.keys, opts.camera_record_hz)  # type: ignore[attr-defined]
+            stack.callback(tap.close)  # before the recorder closes (entered first, closed last)
         if isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
