@@ -813,7 +813,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     with progress.stage(f"demo on {scene.name} ({path}), files to {args.out}"):
         _print_live_view(args.foxglove)
-        report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path), foxglove=args.foxglove)
+        report = run_demo(Path(args.out), seed=args.seed, scene_name=str(path), objects=args.objects,
+                          foxglove=args.foxglove)
     say(report.text())
     if args.gui and (Path(args.out) / "demo.mcap").is_file():
         from rlgp_exec.gui import show_recording
@@ -1145,6 +1146,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene", default=None,
                    help="an HSR scene with tagged objects: a file or a shipped name (default: table_clearing_hsr)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
+    s.add_argument("--objects", choices=["camera", "mocap"], default="mocap",
+                   help="the executive's object source: the simulation's truth, or the head camera")
     _gui_flag(s, "the demo's recorded run (once it ends)")
     _foxglove_flag(s)
     s.set_defaults(func=cmd_demo)

@@ -124,7 +124,7 @@ def test_demo_takes_a_users_tagged_hsr_scene_and_refuses_others(tmp_path, capsys
     assert "no tagged objects" in capsys.readouterr().err
     seen: list[str] = []
 
-    def run_demo(out, seed=0, scene_name="", foxglove=None):  # the real dry run is `make demo`'s: its scene only
+    def run_demo(out, seed=0, scene_name="", objects="mocap", foxglove=None):
         from rlgp_exec.demo import DemoReport, Stage
         from rlgp_exec.scene import load_scene
 
