@@ -29,24 +29,20 @@ import struct
 import threading
 import time
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cv2
 
+from rlgp_exec.executive.recorder import CAMERA_TYPES, COMPRESSED, INFO, RecordSink
 from rlgp_exec.hal import ros_image as ri
 from rlgp_exec.hal.ros_codec import Rejected, _header, _ser, decode
 from rlgp_exec.hal.validate import RejectCounter, guarded
 from rlgp_exec.hal.zenoh_keys import KeyMap
 
-if TYPE_CHECKING:  # (the recorder imports this module)
-    from rlgp_exec.executive.recorder import RecordSink
-
 __all__ = ["CAMERA_TYPES", "COMPRESSED", "DEFAULT_RATE_HZ", "INFO", "CameraTap", "camera_topics"]
 
 log = logging.getLogger(__name__)
 
-COMPRESSED, INFO = "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"
-CAMERA_TYPES = (COMPRESSED, INFO)  # the message types recorded beside the executive's channels
 DEFAULT_RATE_HZ = 2.0  # [Hz] frames recorded per second of the robot's clock
 JPEG_QUALITY = 80
 OFFSET_WINDOW_S = 1.0  # [s] robot states this recent estimate the robot clock's offset

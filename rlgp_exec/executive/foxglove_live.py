@@ -23,8 +23,7 @@ import foxglove
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive import ros_messages as rm
-from rlgp_exec.executive.camera_record import CAMERA_TYPES
-from rlgp_exec.executive.recorder import RecordSink
+from rlgp_exec.executive.recorder import CAMERA_TYPES, RecordSink
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
 __all__ = ["DEFAULT_PORT", "LATCH_S", "FoxgloveLive", "Tee"]

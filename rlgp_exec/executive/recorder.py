@@ -42,12 +42,15 @@ from mcap.writer import CompressionType, Writer
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive import ros_messages as rm
-from rlgp_exec.executive.camera_record import CAMERA_TYPES
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
 __all__ = [
-    "CHANNELS", "MAX_RECORD", "SCHEMAS", "RecordSink", "Recorder", "Recording", "RecordingError", "read_recording",
+    "CAMERA_TYPES", "CHANNELS", "MAX_RECORD", "SCHEMAS", "RecordSink", "Recorder", "Recording", "RecordingError",
+    "read_recording",
 ]
+
+COMPRESSED, INFO = "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"
+CAMERA_TYPES = (COMPRESSED, INFO)  # the message types recorded beside the executive's channels
 
 log = logging.getLogger(__name__)
 
