@@ -213,7 +213,9 @@ class CanBackend(RobotInterface):
         )
 
     def _on_activate(self) -> None:
-        self._enable_wanted = True
+        with self._lock:  # every drive awaits its enable before any statusword is judged against it
+            self._enable_wanted = True
+            self._mark_controlword_sent(self._nodes)
         for nid in self._nodes:
             self._controlword(nid, cn.CW_ENABLE, cn.MODE_POSITION)
 
@@ -632,8 +634,14 @@ class CanBackend(RobotInterface):
     def _controlword(self, nid: int, cw: int, mode: int = 0) -> None:
         """Enable or disable voltage (mode 0 keeps the drive's); its statusword is not checked for a while."""
         with self._lock:
-            self._w[nid].cw_sent, self._w[nid].cw_acked = time.monotonic(), False
+            self._mark_controlword_sent([nid])
         self._rpdo2(nid, cw, mode, 0)
+
+    def _mark_controlword_sent(self, nids: Iterable[int]) -> None:
+        """Statuswords of ``nids`` still in flight show the old state for a while (call under ``_lock``)."""
+        now = time.monotonic()
+        for nid in nids:
+            self._w[nid].cw_sent, self._w[nid].cw_acked = now, False
 
     def _fault(self, reason: str) -> None:
         """Unrecoverable: every drive quick-stopped, the e-stop latched, the HAL in ERROR."""
@@ -735,6 +743,7 @@ class CanBackend(RobotInterface):
             self._latched = False
             for w in self._w.values():
                 w.enable_fault = False
+            self._mark_controlword_sent(self._nodes)
         for nid in self._nodes:  # CiA 402: fault reset leaves Fault, disable voltage leaves quick stop
             self._rpdo2(nid, cn.CW_FAULT_RESET, 0, 0)
             self._controlword(nid, cn.CW_DISABLE_VOLTAGE)
