@@ -60,8 +60,13 @@ class Perception:
         camera: CameraIntrinsics,
         detector: TagDetector | None = None,
         tracker: ObjectTracker | None = None,
+        max_pos_std_m: float = math.inf,
     ) -> None:
+        """``max_pos_std_m`` [m]: a tag pose whose error figure is larger (a small tag, far away) places
+        no object: its depth error along the ray would put a resting object into or above its support."""
         self.registry, self.camera = registry, camera
+        self.max_pos_std_m = max_pos_std_m
+        self.too_far = 0  # tag poses not fused: error figure over max_pos_std_m
         self.detector = detector or TagDetector()
         self.tracker = tracker or ObjectTracker()
 
@@ -100,6 +105,11 @@ class Perception:
             pose, why = estimate_tag_pose(det, mount.size, self.camera, R_cw @ normal_w)
             if pose is None:
                 rejected.append(why)
+                continue
+            if pose.pos_std_m > self.max_pos_std_m:  # expected on far views: counted, not warned
+                self.too_far += 1
+                log.debug("tag %d: error figure %.0f mm over %.0f mm: too far to place %s", det.tag_id,
+                          pose.pos_std_m * 1e3, self.max_pos_std_m * 1e3, mount.object)
                 continue
             T_wo = T_wc @ pose.T_camera_tag @ np.linalg.inv(mount.T_object_tag)
             observations.append(Observation(mount.object, det.tag_id, T_wo, pose.pos_std_m, pose.rot_std_rad, stamp))

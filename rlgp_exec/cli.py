@@ -1146,8 +1146,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene", default=None,
                    help="an HSR scene with tagged objects: a file or a shipped name (default: table_clearing_hsr)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
-    s.add_argument("--objects", choices=["camera", "mocap"], default="mocap",
-                   help="the executive's object source: the simulation's truth, or the head camera")
+    s.add_argument("--objects", choices=["camera", "mocap"], default="camera",
+                   help="the executive's object source: the head camera, or the simulation's truth (mocap)")
     _gui_flag(s, "the demo's recorded run (once it ends)")
     _foxglove_flag(s)
     s.set_defaults(func=cmd_demo)

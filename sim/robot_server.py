@@ -48,7 +48,14 @@ from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.sim_physics import SimRobot
 from rlgp_exec.hal.types import GripperCommand, JointSetpoint
 from rlgp_exec.hal.validate import CommandLimits, RejectCounter
-from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT, exact, load_key_map, open_session, session_config
+from rlgp_exec.hal.zenoh_keys import (
+    DEFAULT_ENDPOINT,
+    control_publisher,
+    exact,
+    load_key_map,
+    open_session,
+    session_config,
+)
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
 from rlgp_exec.sim.logs import configure_logging
@@ -120,7 +127,7 @@ class ZenohRobotServer:
     def _declare(self, s: Any) -> None:
         k = self.keys
         for name in ("joint_states", "odom", "runstop", "faults"):
-            self._pubs[name] = s.declare_publisher(k[name].key)
+            self._pubs[name] = control_publisher(s, k[name].key)
         handlers: dict[str, Callable[[bytes, str], None]] = {
             "cmd_vel": self._cmd_vel,
             "grasp": self._grasp,

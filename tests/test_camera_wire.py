@@ -409,7 +409,7 @@ def test_look_for_points_the_head_until_an_object_out_of_view_is_seen(tmp_path):
             # block_green's tag is ~6 px from the start base: reported with why, not searched for
             assert unseen.unverified == {"block_green"} and unseen.views == 0
             why = dict(unseen.undetectable)["block_green"]
-            assert "px tag side from here" in why and "needs >= 10 px" in why and why in unseen.detail
+            assert "px tag side from here" in why and "placing it needs >= 12 px" in why and why in unseen.detail
         finally:
             objects.close()
             hal.shutdown()

@@ -303,3 +303,20 @@ def test_the_head_points_the_optical_axis_at_reachable_targets(robot):
     behind = np.array([-3.0, 0.0, 0.0])  # out of the pan range of neither robot? then check it reports
     q = look_at_q(model, q0, behind)
     assert np.all(q >= model.limits.lower - 1e-9) and np.all(q <= model.limits.upper + 1e-9)
+
+
+def test_a_tag_too_far_to_place_precisely_places_nothing_and_is_counted(world):
+    """A detection whose error figure is over max_pos_std_m updates no estimate (a far tag's depth error
+    would sink its object into the table); the same view places it without the limit, a near one with it."""
+    rng = np.random.default_rng(3)
+    far, near = view_of(world, "block_green", rng, d=(1.1, 1.2)), view_of(world, "block_green", rng, d=(0.5, 0.6))
+    free = Perception(TagRegistry.from_scene(world.scene), CAM)
+    rep = free.process(render_camera(world, CAM, far), far, 0.0)
+    assert [o.object for o in rep.observations] == ["block_green"]
+    limit = rep.observations[0].pos_std_m * 0.9
+    gated = Perception(TagRegistry.from_scene(world.scene), CAM, max_pos_std_m=limit)
+    rep = gated.process(render_camera(world, CAM, far), far, 0.0)
+    assert rep.observations == () and rep.updated == () and gated.too_far == 1
+    assert gated.tracker.estimates() == {}
+    rep = gated.process(render_camera(world, CAM, near), near, 1.0)
+    assert rep.updated == ("block_green",) and rep.observations[0].pos_std_m < limit

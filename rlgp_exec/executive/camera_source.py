@@ -50,6 +50,7 @@ from rlgp_exec.perception.camera import CameraIntrinsics, PerceptionError, camer
 from rlgp_exec.perception.detector import TagDetector
 from rlgp_exec.perception.look_around import candidate_points
 from rlgp_exec.perception.pipeline import Perception
+from rlgp_exec.perception.pose import MIN_CORNER_SIGMA_PX
 from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.perception.tracker import ObjectEstimate, ObjectTracker
 from rlgp_exec.robot.model import FloatArray, RobotModel
@@ -71,6 +72,9 @@ MISSES = 3  # frames in a row an object in plain view is not detected before its
 OCCLUDED_M = 0.3  # [m] an object this close to the tool frame may be hidden by the hand: not a miss
 VIEW_RANGE_M = (0.3, 1.2)  # [m] distances at which a tag facing the camera is surely detected
 FACING_COS = 0.7  # the tag's normal within 45 deg of the line of sight
+# [m] a tag pose's error figure (pose.estimate_tag_pose) over this places nothing: from a small, far tag the
+# depth error sinks a resting object into its table or lifts it off (~12 px for a 4 cm tag)
+PLACE_STD_MAX_M = 0.045
 MIN_OBSERVATIONS = 2  # look_for: images an object must be seen in
 CONFIRM = 2  # images in a row that must agree before an object counts as moved (the tracker's confirm)
 # a jump beyond max(GATE_SIGMA sigma, GATE_MIN_M) is a move: the PnP error figures are ~5x the errors seen
@@ -210,7 +214,9 @@ class CameraObjects(ObjectSource):
         self.tool_frame = model.manipulator().tool_frame
         self.registry = TagRegistry.from_scene(scene)
         tracker = ObjectTracker(max_age_s=max_age_s, gate_sigma=GATE_SIGMA, gate_min_m=GATE_MIN_M, confirm=CONFIRM)
-        self.perception = Perception(self.registry, camera_for_robot(model.name), TagDetector(detector), tracker)
+        self.perception = Perception(
+            self.registry, camera_for_robot(model.name), TagDetector(detector), tracker, max_pos_std_m=PLACE_STD_MAX_M
+        )
         self.head_views = HeadViews(model, scene, self.perception.camera)  # look_for's thread only (PyBullet)
         self.rejects = RejectCounter("camera")
         self.history = StampedHistory(model, self.rejects)
@@ -575,7 +581,6 @@ class CameraObjects(ObjectSource):
         """Why each of ``names`` cannot be detected from the base pose of ``q``: its tag at its believed
         pose (the estimate, else the scene's) under the detector's minimum from the best head view, or no
         free view of it."""
-        need = self.perception.detector.min_side_px
         with self._lock:
             ests = self.perception.tracker.estimates()
         out = {}
@@ -586,9 +591,9 @@ class CameraObjects(ObjectSource):
             if isinstance(view, str):
                 out[name] = f"{name}: {view}"
                 continue
-            side = self._tag_side_px(name, view.q, point)
+            side, need = self._tag_side_px(name, view.q, point), self._need_side_px(name)
             if side < need:
-                out[name] = f"{name}: ~{side:.0f} px tag side from here, the detector needs >= {need:.0f} px"
+                out[name] = f"{name}: ~{side:.0f} px tag side from here, placing it needs >= {need:.0f} px"
         return out
 
     def _wait_frames(self, n: int, deadline: float, done: Any, settle_s: float = 0.0) -> None:
@@ -612,6 +617,14 @@ class CameraObjects(ObjectSource):
         standing object) in the image taken at ``q``."""
         sizes = [m.size for m in (self.registry.get(i) for i in self.registry.ids) if m and m.object == name]
         return self.head_views.tag_side_px(q, point, max(sizes, default=0.0))
+
+    def _need_side_px(self, name: str) -> float:
+        """The smallest tag side [px] that detects ``name`` and places it: the detector's minimum, or the side
+        at which the error figure reaches PLACE_STD_MAX_M (sigma z / side, with z = size f / side)."""
+        sizes = [m.size for m in (self.registry.get(i) for i in self.registry.ids) if m and m.object == name]
+        cam = self.perception.camera
+        placed = math.sqrt(MIN_CORNER_SIGMA_PX * max(sizes, default=0.0) * (cam.fx + cam.fy) / 2 / PLACE_STD_MAX_M)
+        return max(float(self.perception.detector.min_side_px), placed)
 
     def _point_head(
         self, hal: RobotInterface, point: FloatArray, name: str, margin: float = MIN_SIDE_MARGIN, tries: int = 3
@@ -646,7 +659,7 @@ class CameraObjects(ObjectSource):
         if not isinstance(view, HeadView):
             log.debug("look_for: no view of %s at %s: %s", name, np.round(point, 3), view)
             return None
-        if self._tag_side_px(name, view.q, point) < margin * self.perception.detector.min_side_px:
+        if self._tag_side_px(name, view.q, point) < margin * self._need_side_px(name):
             return None
         return self._move_head(hal, q, view.q)
 
@@ -677,6 +690,7 @@ class CameraObjects(ObjectSource):
         return {
             "frames": self.frames,
             "skipped": self.skipped,
+            "too_far": self.perception.too_far,  # tag poses too uncertain to place an object (PLACE_STD_MAX_M)
             "rejected": self.rejects.counts(),
             "latency_ms_p99": float(np.percentile(self.latency_ms, 99)) if self.latency_ms else None,
             "process_ms_median": float(np.median(self.process_ms)) if self.process_ms else None,

@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 
 MOCAP_KEY = "rlgp/mocap/objects"  # tf2_msgs/msg/TFMessage, world frame "map"
 DRAWER_SUFFIX = ".drawer"  # mocap frame of a cabinet's drawer: "<cabinet>.drawer"
-SNAP_Z = 0.015  # [m] a sensed object this close above/below a support surface rests on it
+SNAP_Z = 0.02  # [m] a sensed object this close above/below a support surface rests on it
 DRAWER_CLOSED_M = 0.01  # [m] a drawer out less than this counts as closed
 DRAWER_STOP_TOL_M = 0.005  # [m] a sensed opening this far beyond a stop is the stop, not a sensor fault
 HELD_MAX_M = 0.15  # [m] a held object sensed farther than this from the tool frame is not in the hand

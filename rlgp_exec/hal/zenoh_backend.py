@@ -31,6 +31,7 @@ from rlgp_exec.hal.zenoh_keys import (
     DEFAULT_ENDPOINT,
     EXECUTIVE_LOST,
     EXECUTIVE_SILENT,
+    control_publisher,
     exact,
     load_key_map,
     open_session,
@@ -109,8 +110,8 @@ class ZenohBackend(RobotInterface):
         ]
         for t in k.topics.values():
             if t.direction == "command":
-                self._pubs[t.name] = s.declare_publisher(t.key)
-        self._pubs["heartbeat"] = s.declare_publisher(k.heartbeat)
+                self._pubs[t.name] = control_publisher(s, t.key)
+        self._pubs["heartbeat"] = control_publisher(s, k.heartbeat)
         self._token = s.liveliness().declare_token(k.alive_executive)
         self._keepalive_stop.clear()
         self._keepalive = threading.Thread(target=self._keepalive_loop, name="zenoh-keepalive", daemon=True)

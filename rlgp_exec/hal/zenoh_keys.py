@@ -29,6 +29,7 @@ __all__ = [
     "EXECUTIVE_SILENT",
     "KeyMap",
     "Topic",
+    "control_publisher",
     "exact",
     "load_key_map",
     "open_session",
@@ -196,6 +197,15 @@ def _check_tls(c: Any, config_file: str | Path | None) -> None:
                     raise HalError(
                         f"zenoh endpoint {ep!r} is TLS but transport/link/tls lacks {missing} ({where})"
                     )
+
+
+def control_publisher(session: Any, key: str) -> Any:
+    """A publisher for the robot's state and commands: at real-time priority, sent at once (not batched).
+    Camera frames share the link at a lower priority: at the default priority a frame's fragments ahead of a
+    joint state held it up past the state watchdog."""
+    import zenoh
+
+    return session.declare_publisher(key, priority=zenoh.Priority.REAL_TIME, express=True)
 
 
 def open_session(config: Any, what: str) -> Any:
