@@ -25,6 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from rlgp_exec.errors import RlgpError
 
 __all__ = ["DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
@@ -40,7 +42,6 @@ DEMO_OBJECTS = "camera"  # the executive's object source, as on the robot: its h
 def _against_truth(sensed: object, endpoint: str) -> str:
     """Each object of the executive's final (sensed) scene against the simulation's truth (its mocap
     stream, read for this only), in mm."""
-    import numpy as np
 
     from rlgp_exec.executive.runner import RunOptions, connect
     from rlgp_exec.scene import Scene
@@ -215,7 +216,6 @@ def run_demo(
         )
 
     def camera() -> str:
-        import numpy as np
 
         from rlgp_exec.executive.camera_source import CameraObjects
         from rlgp_exec.executive.runner import RunOptions, connect

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,6 @@ __all__ = ["run_reachability_bench"]
 def run_reachability_bench(
     scene_path: str | Path, samples: int = 200, queries: int = 100, seed: int = 0, workers: int | None = None
 ) -> dict:
-    from dataclasses import replace
 
     from rlgp_exec.world.pybullet_world import build_world
 

@@ -56,6 +56,7 @@ class Topic:
     type: str  # ROS 2 message type
     direction: str  # "state" | "command"
     joints: tuple[str, ...] = ()
+    ros2: str = ""  # the ROS 2 topic the bridge exposes as this key ("/hsrb/odom"); "" for an rlgp-only key
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,14 @@ def load_key_map(robot: str = "hsr", namespace: str = "") -> KeyMap:
                 raise HalError(f"{path}: [keys.{name}] lacks '{f}'")
         if t["dir"] not in ("state", "command"):
             raise HalError(f"{path}: [keys.{name}].dir must be 'state' or 'command', got {t['dir']!r}")
-        topics[name] = Topic(name, _prefix(namespace, t["key"]), t["type"], t["dir"], tuple(t.get("joints", ())))
+        ros2 = t.get("ros2", "")
+        # the Zenoh-ROS 2 bridge exposes "/<topic>" as the key "<topic>": a mismatch names a topic never bridged
+        if ros2 and (not isinstance(ros2, str) or not ros2.startswith("/") or ros2[1:] != t["key"]):
+            raise HalError(
+                f"{path}: [keys.{name}].ros2 {ros2!r} is not the ROS 2 topic of key {t['key']!r} "
+                f"(expected '/{t['key']}')"
+            )
+        topics[name] = Topic(name, _prefix(namespace, t["key"]), t["type"], t["dir"], tuple(t.get("joints", ())), ros2)
     live = raw.get("liveliness", {})
     return KeyMap(
         robot=robot,
@@ -194,9 +202,7 @@ def _check_tls(c: Any, config_file: str | Path | None) -> None:
                 missing = [f for f in needed if not tls.get(f)]
                 if missing:
                     where = f"zenoh config {config_file}" if config_file else "no --zenoh-config given"
-                    raise HalError(
-                        f"zenoh endpoint {ep!r} is TLS but transport/link/tls lacks {missing} ({where})"
-                    )
+                    raise HalError(f"zenoh endpoint {ep!r} is TLS but transport/link/tls lacks {missing} ({where})")
 
 
 def control_publisher(session: Any, key: str) -> Any:

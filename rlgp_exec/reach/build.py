@@ -15,7 +15,7 @@ import math
 import multiprocessing as mp
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +79,6 @@ def graph_meta(model: RobotModel, scene: Scene, manipulator: str, params: RGPara
     ik_idx = [*model.group("base"), *model.group(model.manipulator(manipulator).group)]
     fixed = {n: round(float(q0[i]), 6) for i, n in enumerate(model.joint_names) if i not in ik_idx}
     import hashlib
-    from dataclasses import asdict
 
     # robot.toml and the URDF PyBullet checks against (a graph built before a collision-shape change
     # keeps nodes and edges the robot no longer has, or lacks the ones it gained)

@@ -5,6 +5,8 @@ the internal best-first search on the compiled task), ``gnpp_trn_fd`` (logic by 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from rlgp_exec.planning.gnpp.planner import LOGIC_MAX_EXPANSIONS, VARIANTS, GnppResult, GnppStatus, Logic, plan_gnpp
@@ -20,7 +22,6 @@ __all__ = ["BENCH_TIMEOUT_S", "PLANNERS", "VARIANTS", "GnppResult", "GnppStatus"
 
 def _planner(variant: str, name: str, logic: Logic = Logic.INTERNAL, lm_verdicts: bool = False):
     def run(scene: Scene, seed: int, memory: PlannerMemory | None = None, limits: PlanLimits = DEFAULT_LIMITS) -> Plan:
-        from dataclasses import replace
 
         if not scene.start.empty:  # its PNTC model starts from empty grippers and closed drawers
             why = f"holding {scene.start.held!r}" if scene.start.held else f"drawers out {dict(scene.start.openings)}"

@@ -28,9 +28,8 @@ __all__ = ["Checker", "Conflict", "ExtractOptions", "find_conflict"]
 log = logging.getLogger(__name__)
 FILTER_MAX = RESTART_ABOVE  # conflicts up to this size are made minimal (QuickXplain) and refuted
 #: relaxations whose components are tried whole before the time search: the tightest ones (arms and
-#: their collisions), where the NLPs are large, feasible nearly always once the looser relaxations
-#: are (tower, obstacles, Hanoi, seeds 0-2: 7 "infeasible" of their 187 windows), and window by window cost
-#: 3-5 solves of growing size (a feasible plan's No Time and full graph took 40-60 % of tower's CPU)
+#: their collisions), where the NLPs are large and nearly always feasible once the looser relaxations
+#: are, so a window-by-window search would cost several growing solves for the same verdict
 WHOLE_FIRST = (Relaxation.NO_TIME, Relaxation.NONE)
 #: relaxations whose large NLPs found infeasible from the guess get ``GraphSolver``'s second start (the
 #: arms' start postures, ``solver.RESTART_ABOVE``): the full graph only, where it turns verdicts; at "No

@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import math
 import weakref
+import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -249,7 +250,6 @@ def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
 
 
 def _read_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
-    import xml.etree.ElementTree as ET
 
     from scipy.spatial.transform import Rotation
 

@@ -76,10 +76,8 @@ log = logging.getLogger(__name__)
 W_BASE = 3.0  # base motion weighs more than arm motion in the objective
 W_TILT = 20.0  # a tilted grasp costs like ~2.5 m of base motion at full tilt: only when it must
 ATTEMPTS = 8  # initial guesses tried before a keyframe problem counts as infeasible
-# IPOPT's successive restoration iterations before it gives a start up. Stuck starts stayed in restoration
-# to the 400-iteration cap (pick_place_pr2 seed 3: two starts, 366 and 390 iterations in it, 1.8 s each);
-# of the keyframe solves of pick_place_pr2 and sorting_pr2 seeds 0-19 and table_clearing_hsr seeds 0-5,
-# none that succeeded spent more than 28 successive iterations there
+# IPOPT's successive restoration iterations before it gives a start up: a start stuck in restoration
+# rarely recovers, and successful solves leave it far sooner
 MAX_RESTO_ITER = 100
 HAND_MARGIN = 0.008  # [m] the open fingers' spheres keep this from fixtures and standing objects
 ARM_MARGIN = 0.015  # [m] the arm spheres keep this much more from the boxes (room for the guided paths)
