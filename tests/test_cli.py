@@ -14,7 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from rlgp_exec.cli import _bad_request, _no_default, build_parser, main
+from rlgp_exec.cli import build_parser, main
+from rlgp_exec.cli.daemon import bad_request
+from rlgp_exec.cli.flags import no_default
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.expected_log import expected_warnings
 from rlgp_exec.planning.registry import planner_names
@@ -52,12 +54,12 @@ def test_every_option_of_every_command_has_help_and_every_command_examples():
         if not isinstance(a, argparse._SubParsersAction) and not (a.help or "").strip()
     ]
     assert not missing, f"options without help: {missing}"
-    assert not _no_default(0) and _no_default(False) and _no_default(None) and _no_default("")
+    assert not no_default(0) and no_default(False) and no_default(None) and no_default("")
     for name, p in commands.items():
         text = p.format_help()
         assert "examples:" in text and f"rlgp-exec {name}" in text.split("examples:")[1], name
         for a in p._actions:  # a default that matters is shown
-            if a.option_strings and not _no_default(a.default):
+            if a.option_strings and not no_default(a.default):
                 assert "default" in p._get_formatter()._get_help_string(a), (name, a.option_strings)
 
 
@@ -182,9 +184,9 @@ def test_request_exit_codes(monkeypatch, capsys):
         assert "no_such_place" in out and "ESTOPPED" in out
     finally:
         daemon.stop()
-    assert _bad_request("goal: literals[0]: unknown object 'x'")
-    assert not _bad_request("goal refused: the executive is ESTOPPED; an operator must send rearm first")
-    assert not _bad_request("no daemon answered at tcp/127.0.0.1:1 within 5.0 s")
+    assert bad_request("goal: literals[0]: unknown object 'x'")
+    assert not bad_request("goal refused: the executive is ESTOPPED; an operator must send rearm first")
+    assert not bad_request("no daemon answered at tcp/127.0.0.1:1 within 5.0 s")
 
 
 def test_expected_warnings_are_logged_at_info(caplog):
@@ -218,7 +220,7 @@ def test_a_worker_outliving_its_stop_ends_the_process_without_leak_dumps(tmp_pat
     print its leak dumps at interpreter shutdown; the daemon command ends the process first, its code kept."""
     code = """
 import threading, time, ruckig
-from rlgp_exec.cli import exit_if_threads_linger
+from rlgp_exec.cli.daemon import exit_if_threads_linger
 def hold():
     kept = (ruckig.Ruckig(3, 0.01), ruckig.InputParameter(3))
     time.sleep(60)
