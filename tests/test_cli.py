@@ -235,3 +235,10 @@ if {linger}:
                            timeout=60) for x in (False, True)]
     assert "nanobind: leaked" in runs[0].stderr  # what a plain exit prints: the test shows the case
     assert runs[1].returncode == 3 and runs[1].stdout == "stopped\n" and "leaked" not in runs[1].stderr
+
+
+@pytest.mark.parametrize("goal", ["(on block", "(on block no_such_place)"])
+def test_run_with_a_bad_goal_exits_2_and_says_why(goal, capsys):
+    assert main(["-q", "run", str(SHELF), "--goal", goal]) == 2
+    out = capsys.readouterr().out
+    assert "invalid_goal" in out and goal.split()[-1].strip("()") in out

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.cli.common import (
+    EXIT_BAD_INPUT,
     EXIT_FAILED,
     EXIT_OK,
     output_checks,
@@ -95,6 +96,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         from rlgp_exec.gui import show_recording
 
         show_recording(record)
+    if result.status.value == "invalid_goal":  # a malformed or unknown --goal is bad input, as in `request goal`
+        return EXIT_BAD_INPUT
     return EXIT_OK if result.ok else EXIT_FAILED
 
 
