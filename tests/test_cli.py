@@ -148,6 +148,16 @@ def test_gui_without_a_display_exits_2_before_any_work(monkeypatch, capsys, tmp_
         assert "$DISPLAY" in err and len(err.strip().splitlines()) == 1, err
 
 
+
+def test_gui_with_a_display_no_x_server_answers_exits_2_before_any_work(monkeypatch, capsys):
+    """A stale $DISPLAY (a closed ssh -X session): refused up front, not after a plan, by PyBullet."""
+    monkeypatch.setenv("DISPLAY", ":87")  # no /tmp/.X11-unix/X87 here
+    for argv in (["plan", str(SHELF), "--gui"], ["run", str(SHELF), "--gui"], ["demo", "--gui"]):
+        assert main(["-q", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert "no X server answers on DISPLAY=:87" in err and "planning" not in err, err
+
+
 @pytest.mark.parametrize("extra, says", [
     (["--animate", "motion.avi"], ".gif or .mp4"),
     (["--animate", "motion.gif", "--fps", "0"], "must be positive"),
