@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import time
 from pathlib import Path
 
@@ -18,13 +19,37 @@ __all__ = ["require_display", "show_plan", "show_recording"]
 log = logging.getLogger(__name__)
 
 
+_NO_DISPLAY_HINT = "(render headless with plan/replay --animate FILE.gif|mp4, or use ssh -X / a desktop session)"
+
+
+def _x_server_answers(display: str, timeout_s: float = 1.0) -> bool:
+    """Whether the X server of ``display`` (``[host]:N[.S]``) accepts a connection: its unix socket for a local
+    display, TCP port 6000 + N for a remote one. A display it cannot parse is left for PyBullet to try."""
+    host, sep, rest = display.rpartition(":")
+    number = rest.split(".")[0]
+    if not sep or not number.isdigit():
+        return True
+    try:
+        if host in ("", "unix"):
+            with socket.socket(socket.AF_UNIX) as s:
+                s.settimeout(timeout_s)
+                s.connect(f"/tmp/.X11-unix/X{number}")
+        else:
+            socket.create_connection((host, 6000 + int(number)), timeout=timeout_s).close()
+    except OSError:
+        return False
+    return True
+
+
 def require_display() -> None:
-    """Raise RlgpError (bad input: exit 2) where no X display is set: PyBullet's GUI would abort the process."""
-    if not os.environ.get("DISPLAY"):
-        raise RlgpError(
-            "--gui opens PyBullet's window and needs a display, but $DISPLAY is not set "
-            "(use --animate FILE.gif|mp4 to render the motion headless, or ssh -X / a desktop session)"
-        )
+    """Raise RlgpError (bad input: exit 2) where no X display is set or its server does not answer: PyBullet's
+    GUI would print "cannot connect to X server" and end the process after the work was done."""
+    display = os.environ.get("DISPLAY")
+    if not display:
+        raise RlgpError(f"--gui opens PyBullet's window and needs a display, but $DISPLAY is not set "
+                        f"{_NO_DISPLAY_HINT}")
+    if not _x_server_answers(display):
+        raise RlgpError(f"--gui: no X server answers on DISPLAY={display} {_NO_DISPLAY_HINT}")
 
 
 def _play(scene, make_player, hold: bool = True) -> None:

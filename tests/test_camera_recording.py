@@ -246,3 +246,57 @@ def test_frames_arriving_while_one_is_written_replace_each_other_and_are_counted
     stamps = [ri.parse_compressed(p).stamp - tap._offset() for _, t, p, _ in sink.ros if t == COMPRESSED]
     assert stamps == pytest.approx([1.0, 4.0], abs=1e-6)
     assert tap.stats() == {"received": 5, "thinned": 1, "dropped": 2, "written": 2, "rejected": {}}
+
+
+def _png_compressed(stamp: float, frame_id: str, rgb: np.ndarray) -> bytes:
+    """sensor_msgs/CompressedImage, PNG (a robot's ``.../compressed`` topic with png_level set)."""
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    assert ok
+    msg = rc._t(COMPRESSED)(header=rc._header(stamp, frame_id), format="rgb8; png compressed bgr8",
+                            data=np.asarray(buf, np.uint8).reshape(-1))
+    return rc._ser(msg, COMPRESSED)
+
+
+def test_a_robot_publishing_only_compressed_images_is_recorded_as_it_publishes(tmp_path):
+    """JPEG and PNG frames from ``.../image_rect_color/compressed`` reach the recording with their bytes
+    and format untouched (no re-encoding), restamped onto the recording's clock and read back by the
+    ROS 2 reader; a raw Image arriving afterwards is left (the first kind wins) and counted."""
+    from rlgp_exec.executive.recorder import Recorder
+
+    keys = load_key_map("hsr")
+    cam = camera_for_robot("hsr")
+    rng = np.random.default_rng(3)
+    rgb = rng.integers(0, 255, (cam.height, cam.width, 3), dtype=np.uint8)
+    sent = {1.0: ri.encode_compressed(1.0, "cam", rgb, quality=70), 2.0: _png_compressed(2.0, "cam", rgb)}
+    session, path = _Session(), tmp_path / "compressed.mcap"
+    with Recorder(path) as rec:
+        tap = CameraTap(rec, session, keys, rate_hz=10.0)
+
+        def put(key: str, payload: bytes) -> None:
+            session.callbacks[key](_sample(key, payload))  # type: ignore[operator]
+
+        try:
+            put(keys["joint_states"].key, rc.encode_joint_state(1.0, ["head_pan_joint"], [0.0], [0.0]))
+            put(keys["camera_info"].key, ri.encode_camera_info(1.0, "cam", cam.width, cam.height, cam.K))
+            for stamp, payload in sent.items():
+                put(keys["camera_compressed"].key, payload)
+                end = time.monotonic() + 10.0
+                while tap.stats()["written"] < len([s for s in sent if s <= stamp]) and time.monotonic() < end:
+                    time.sleep(0.01)
+            put(keys["camera_image"].key, ri.encode_image(3.0, "cam", rgb))
+            time.sleep(0.2)
+            offset = tap._offset()
+        finally:
+            tap.close()
+    stats = tap.stats()
+    assert stats["written"] == 2 and stats["other_kind"] == 1 and stats["rejected"] == {}, stats
+    image_topic, _ = camera_topics(keys)
+    got = [m.ros_msg for m in read_ros2_messages(str(path), topics=[image_topic])]
+    assert len(got) == 2
+    for m, (stamp, payload) in zip(got, sent.items(), strict=True):
+        original = rc.decode(payload, COMPRESSED, ri.MAX_IMAGE_BYTES)
+        assert m.format == original.format and bytes(m.data) == bytes(original.data)  # not re-encoded
+        assert m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 == pytest.approx(stamp + offset, abs=1e-6)
+    assert "png" in got[1].format
+    decoded = cv2.imdecode(np.frombuffer(bytes(got[1].data), np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(decoded[:, :, ::-1], rgb)  # PNG: the robot's pixels exactly

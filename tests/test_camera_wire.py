@@ -506,3 +506,40 @@ def test_a_childs_output_is_read_so_a_chatty_robot_never_blocks():
     kept = rp.output["chatty"]
     assert isinstance(kept, deque) and len(kept) == KEEP_LINES
     assert any("line 4999" in line for line in kept)  # the newest lines, for the error a death reports
+
+
+def test_the_camera_source_reads_a_robot_that_publishes_only_compressed_images():
+    """JPEG frames on ``.../compressed`` place the tag as raw ones do; a raw Image arriving after them is
+    left (the first kind of image is the one used) and counted."""
+    from rlgp_exec.executive.camera_source import CameraObjects
+    from rlgp_exec.perception.camera import camera_for_robot
+    from rlgp_exec.perception.rendered_camera import hide_floor, render_camera
+    from rlgp_exec.world.pybullet_world import build_world
+
+    scene = load_scene(SCENE)
+    world = build_world(scene)
+    try:
+        model = world.robot_model
+        cam, frame_id = camera_for_robot("hsr"), model.config.frames["camera"]
+        background = hide_floor(world)
+        src = CameraObjects(None, load_key_map("hsr"), model, scene, worker=False)
+        src.on_camera_info(ri.encode_camera_info(0.0, frame_id, cam.width, cam.height, cam.K))
+        q = world.robot.get_q()
+        names = tuple(model.joint_names[3:])
+        for k in range(30):
+            src.history.on_joint_states(rc.encode_joint_state(k * 0.01, names, q[3:], np.zeros(len(names))))
+            src.history.on_odom(rc.encode_odometry(k * 0.01, *q[:3], 0.0, 0.0, 0.0))
+        img = render_camera(world, cam, background=background)
+        for k in range(3):
+            src.on_compressed(ri.encode_compressed(0.18 + 0.01 * k, frame_id, img, quality=95))
+        assert src.frames == 3 and src.rejects.counts() == {}, src.stats()
+        est = src.perception.tracker.estimate("block_blue")
+        assert est is not None
+        assert float(np.linalg.norm(est.T_world_object[:3, 3] - world.object_pose("block_blue")[:3, 3])) < 0.005
+        src.on_image(ri.encode_image(0.25, frame_id, img))
+        assert src.frames == 3 and src.stats()["other_kind"] == 1
+        src.on_compressed(b"\x00\x01\x00\x00" + b"\xff" * 40)  # a bad one: counted, never raised
+        assert sum(src.rejects.counts().values()) == 1
+        src.close()
+    finally:
+        world.close()

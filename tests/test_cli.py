@@ -14,7 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from rlgp_exec.cli import _bad_request, _no_default, build_parser, main
+from rlgp_exec.cli import build_parser, main
+from rlgp_exec.cli.daemon import bad_request
+from rlgp_exec.cli.flags import no_default
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.expected_log import expected_warnings
 from rlgp_exec.planning.registry import planner_names
@@ -52,12 +54,12 @@ def test_every_option_of_every_command_has_help_and_every_command_examples():
         if not isinstance(a, argparse._SubParsersAction) and not (a.help or "").strip()
     ]
     assert not missing, f"options without help: {missing}"
-    assert not _no_default(0) and _no_default(False) and _no_default(None) and _no_default("")
+    assert not no_default(0) and no_default(False) and no_default(None) and no_default("")
     for name, p in commands.items():
         text = p.format_help()
         assert "examples:" in text and f"rlgp-exec {name}" in text.split("examples:")[1], name
         for a in p._actions:  # a default that matters is shown
-            if a.option_strings and not _no_default(a.default):
+            if a.option_strings and not no_default(a.default):
                 assert "default" in p._get_formatter()._get_help_string(a), (name, a.option_strings)
 
 
@@ -146,6 +148,16 @@ def test_gui_without_a_display_exits_2_before_any_work(monkeypatch, capsys, tmp_
         assert "$DISPLAY" in err and len(err.strip().splitlines()) == 1, err
 
 
+
+def test_gui_with_a_display_no_x_server_answers_exits_2_before_any_work(monkeypatch, capsys):
+    """A stale $DISPLAY (a closed ssh -X session): refused up front, not after a plan, by PyBullet."""
+    monkeypatch.setenv("DISPLAY", ":87")  # no /tmp/.X11-unix/X87 here
+    for argv in (["plan", str(SHELF), "--gui"], ["run", str(SHELF), "--gui"], ["demo", "--gui"]):
+        assert main(["-q", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert "no X server answers on DISPLAY=:87" in err and "planning" not in err, err
+
+
 @pytest.mark.parametrize("extra, says", [
     (["--animate", "motion.avi"], ".gif or .mp4"),
     (["--animate", "motion.gif", "--fps", "0"], "must be positive"),
@@ -182,9 +194,9 @@ def test_request_exit_codes(monkeypatch, capsys):
         assert "no_such_place" in out and "ESTOPPED" in out
     finally:
         daemon.stop()
-    assert _bad_request("goal: literals[0]: unknown object 'x'")
-    assert not _bad_request("goal refused: the executive is ESTOPPED; an operator must send rearm first")
-    assert not _bad_request("no daemon answered at tcp/127.0.0.1:1 within 5.0 s")
+    assert bad_request("goal: literals[0]: unknown object 'x'")
+    assert not bad_request("goal refused: the executive is ESTOPPED; an operator must send rearm first")
+    assert not bad_request("no daemon answered at tcp/127.0.0.1:1 within 5.0 s")
 
 
 def test_expected_warnings_are_logged_at_info(caplog):
@@ -218,7 +230,7 @@ def test_a_worker_outliving_its_stop_ends_the_process_without_leak_dumps(tmp_pat
     print its leak dumps at interpreter shutdown; the daemon command ends the process first, its code kept."""
     code = """
 import threading, time, ruckig
-from rlgp_exec.cli import exit_if_threads_linger
+from rlgp_exec.cli.daemon import exit_if_threads_linger
 def hold():
     kept = (ruckig.Ruckig(3, 0.01), ruckig.InputParameter(3))
     time.sleep(60)
@@ -233,3 +245,10 @@ if {linger}:
                            timeout=60) for x in (False, True)]
     assert "nanobind: leaked" in runs[0].stderr  # what a plain exit prints: the test shows the case
     assert runs[1].returncode == 3 and runs[1].stdout == "stopped\n" and "leaked" not in runs[1].stderr
+
+
+@pytest.mark.parametrize("goal", ["(on block", "(on block no_such_place)"])
+def test_run_with_a_bad_goal_exits_2_and_says_why(goal, capsys):
+    assert main(["-q", "run", str(SHELF), "--goal", goal]) == 2
+    out = capsys.readouterr().out
+    assert "invalid_goal" in out and goal.split()[-1].strip("()") in out

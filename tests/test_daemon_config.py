@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from rlgp_exec.cli import _daemon_settings, build_parser, main
+from rlgp_exec.cli import build_parser, main
+from rlgp_exec.cli.daemon import daemon_settings
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.daemon_config import KEYS, DaemonConfig, load_daemon_config
 from rlgp_exec.planning.registry import planner_names
@@ -56,17 +57,17 @@ def test_command_line_options_override_the_file(tmp_path):
     cfg.write_text('robot = "pr2"\nbackend = "zenoh"\nscene = "lab.toml"\nnamespace = "lab"\n'
                    'planner = "lgp"\ntime_budget = 30.0\nzenoh_config = "z.json5"\n')
     parse = build_parser().parse_args
-    args = _daemon_settings(parse(["daemon", "--config", str(cfg), "--robot", "hsr", "--time-budget", "5",
+    args = daemon_settings(parse(["daemon", "--config", str(cfg), "--robot", "hsr", "--time-budget", "5",
                                    "--planner", planner_names()[0]]))
     assert (args.robot, args.time_budget, args.planner) == ("hsr", 5.0, planner_names()[0])  # given: theirs
     assert (args.backend, args.namespace) == ("zenoh", "lab")  # not given: the file's
     assert args.scene == str(tmp_path / "lab.toml") and args.zenoh_config == str(tmp_path / "z.json5")
-    plain = _daemon_settings(parse(["daemon", "--scene", "s.toml"]))  # no file: the built-in defaults
+    plain = daemon_settings(parse(["daemon", "--scene", "s.toml"]))  # no file: the built-in defaults
     assert (plain.robot, plain.backend, plain.namespace, plain.planner) == ("hsr", "sim", "", "rlgp")
     with pytest.raises(RlgpError, match="no scene: give --scene FILE"):
-        _daemon_settings(parse(["daemon"]))
+        daemon_settings(parse(["daemon"]))
     with pytest.raises(RlgpError, match=r"command line: time_budget = 0.0: expected a positive number"):
-        _daemon_settings(parse(["daemon", "--config", str(cfg), "--time-budget", "0"]))
+        daemon_settings(parse(["daemon", "--config", str(cfg), "--time-budget", "0"]))
 
 
 def test_every_setting_is_a_daemon_option():

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import json
+import logging
 import os
 import socket
 import struct
@@ -17,7 +18,7 @@ import pytest
 
 from rlgp_exec.cli import build_parser
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.executive.foxglove_live import LATCH_S, FoxgloveLive, Tee
+from rlgp_exec.executive.foxglove_live import CLIENT_POLLER_LOGGER, LATCH_S, ClientDropAtInfo, FoxgloveLive, Tee
 from rlgp_exec.executive.recorder import Recorder, read_recording
 from rlgp_exec.executive.ros_record import ROS_CHANNELS
 from rlgp_exec.hal.ros_codec import _store
@@ -198,3 +199,31 @@ def test_the_cameras_images_are_served_and_recorded_on_the_robots_topic(live, tm
     assert dict(r.derived) == {topic: 2, "/hsrb/head_rgbd_sensor/rgb/camera_info": 1} and r.messages == ()
     with pytest.raises(RlgpError, match="only"):
         live.write_ros("/tf", COMPRESSED, image, time.time())
+
+
+def test_a_viewer_dropping_its_connection_is_an_info_event_not_an_error(live, caplog):
+    """A viewer that goes away without a close frame (a closed laptop, a reset link): the SDK's receive
+    error reaches the log as INFO; the server keeps serving the next viewer."""
+    with caplog.at_level(logging.INFO, logger=CLIENT_POLLER_LOGGER):
+        client = WsClient(live.port)
+        client.until(_text("serverInfo"))
+        client.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        client.sock.close()  # SO_LINGER 0: a TCP reset, no closing handshake
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and not any("Error receiving" in r.getMessage() for r in caplog.records):
+            time.sleep(0.05)
+        WsClient(live.port).until(_text("serverInfo"))
+    drops = [r for r in caplog.records if r.name == CLIENT_POLLER_LOGGER and "Error receiving" in r.getMessage()]
+    assert drops and all(r.levelno == logging.INFO for r in drops), [(r.levelname, r.getMessage()) for r in drops]
+    assert not [r for r in caplog.records if r.name.startswith("foxglove") and r.levelno >= logging.ERROR]
+
+
+def test_other_errors_of_the_client_poller_stay_errors():
+    f = ClientDropAtInfo()
+    rec = logging.LogRecord(CLIENT_POLLER_LOGGER, logging.ERROR, __file__, 1, "Error receiving from client "
+                            "127.0.0.1:1: Protocol error: invalid opcode", None, None)
+    assert f.filter(rec) and rec.levelno == logging.ERROR
+    rec = logging.LogRecord(CLIENT_POLLER_LOGGER, logging.ERROR, __file__, 1, "Error receiving from client "
+                            "127.0.0.1:1: IO error: Connection reset by peer (os error 104)", None, None)
+    f.filter(rec)
+    assert rec.levelno == logging.INFO and rec.levelname == "INFO"

@@ -3,6 +3,7 @@ in OpenCV's and ROS's formats, undistortion, and a video file feeding the camera
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from pathlib import Path
@@ -162,3 +163,63 @@ def test_camera_and_calibration_go_together():
         object_source_name(RunOptions(backend="zenoh", camera="/dev/video0"))
     with pytest.raises(RlgpError, match="needs --objects camera"):
         object_source_name(RunOptions(backend="zenoh", objects="mocap", camera="0", calibration=Path("c.yaml")))
+
+
+def test_a_local_cameras_frames_are_recorded_on_the_head_cameras_topics(tmp_path):
+    """``run --camera VIDEO --calibration FILE`` with a recording: the frames the local camera reads are
+    recorded (thinned) as JPEG CompressedImage and the calibration's CameraInfo on the robot's head camera
+    topics, and read back by the ROS 2 reader."""
+    from contextlib import ExitStack
+    from types import SimpleNamespace
+
+    from mcap_ros2.reader import read_ros2_messages
+
+    from rlgp_exec.executive.camera_record import camera_topics
+    from rlgp_exec.executive.camera_source import CameraObjects
+    from rlgp_exec.executive.local_camera import LocalCamera
+    from rlgp_exec.executive.recorder import Recorder
+    from rlgp_exec.executive.runner import RunOptions, _record_camera
+    from rlgp_exec.robot import load_robot
+
+    scene, model, keys = load_scene(SCENE), load_robot("hsr"), load_key_map("hsr")
+    rng = np.random.default_rng(5)
+    video = tmp_path / "lab.avi"
+    out = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (640, 480))
+    assert out.isOpened()
+    for _ in range(30):  # 2 s at the camera's 15 Hz
+        out.write(rng.integers(0, 255, (480, 640, 3), dtype=np.uint8))
+    out.release()
+    cal = _opencv_file(tmp_path / "cam.yaml")
+    src = CameraObjects(None, keys, model, scene, images=False)
+    names = tuple(model.joint_names[3:])
+    q = model.home(scene.robot.base)
+    src.history.on_joint_states(rc.encode_joint_state(1.0, names, q[3:], np.zeros(len(names))))
+    path = tmp_path / "run.mcap"
+    opts = RunOptions(backend="zenoh", objects="camera", camera=str(video), calibration=cal, camera_record_hz=4.0)
+    local = LocalCamera(str(video), cal, src)
+    src.feeds.append(local)
+    try:
+        with Recorder(path) as rec, ExitStack() as stack:
+            _record_camera(stack, rec, SimpleNamespace(keys=keys, session=None), src, opts)
+            assert local.on_frame is not None
+            local.start()
+            assert local.ended.wait(20.0)
+        assert local.on_frame is None  # unset at the run's end, before the recording closes
+    finally:
+        src.close()
+    image_topic, info_topic = camera_topics(keys)
+    msgs = list(read_ros2_messages(str(path), topics=[image_topic, info_topic]))
+    images = [m.ros_msg for m in msgs if m.channel.topic == image_topic]
+    infos = [m.ros_msg for m in msgs if m.channel.topic == info_topic]
+    assert 5 <= len(images) == len(infos) <= 10, len(images)  # 2 s of video at 4 Hz
+    c = local.undistort.intrinsics
+    for img, info in zip(images, infos, strict=True):
+        assert img.header.frame_id == info.header.frame_id == model.config.frames["camera"]
+        assert (img.header.stamp.sec, img.header.stamp.nanosec) == (info.header.stamp.sec, info.header.stamp.nanosec)
+        assert "jpeg" in img.format
+        rgb = cv2.imdecode(np.frombuffer(bytes(img.data), np.uint8), cv2.IMREAD_COLOR)
+        assert rgb.shape == (c.height, c.width, 3) and (info.width, info.height) == (c.width, c.height)
+        assert np.allclose(np.array(info.k).reshape(3, 3), c.K)
+    stamps = [i.header.stamp.sec + i.header.stamp.nanosec * 1e-9 for i in images]
+    assert all(b - a >= 0.25 - 1e-6 for a, b in itertools.pairwise(stamps))
+    assert abs(stamps[-1] - time.time()) < 60  # the recording's (wall) clock

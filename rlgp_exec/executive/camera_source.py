@@ -1,7 +1,9 @@
 """``CameraObjects``: object poses from the robot's own head camera over the HAL's Zenoh session.
 
 Subscribes to the camera's ``sensor_msgs/Image`` and ``CameraInfo`` (keys ``camera_image`` and
-``camera_info`` of ``robots/<robot>/zenoh_keys.toml``) and, for a stamped history, to the joint states
+``camera_info`` of ``robots/<robot>/zenoh_keys.toml``; a robot that publishes only
+``sensor_msgs/CompressedImage``, JPEG or PNG, key ``camera_compressed``, is read from those: the first
+kind of image that arrives is the one used) and, for a stamped history, to the joint states
 and odometry. Each image is processed in a worker thread (the newest waiting one; frames that arrive
 while one is processed replace each other and are counted as skipped): AprilTag detection and PnP
 (``perception``), then the tag is put in the world through the camera pose from forward kinematics at
@@ -32,7 +34,7 @@ import time
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -189,6 +191,12 @@ class LookResult:
         return self.missing - self.untagged
 
 
+class _Compressed(NamedTuple):
+    """A CompressedImage payload waiting for the worker (a bare ``bytes`` one is a raw Image)."""
+
+    payload: bytes
+
+
 class CameraObjects(ObjectSource):
     """Object poses from the head camera's images on ``session`` (the HAL's)."""
 
@@ -236,7 +244,9 @@ class CameraObjects(ObjectSource):
         self._misses: dict[str, int] = {}
         self._last_stamp = -math.inf
         self._last_wall = -math.inf
-        self._pending: bytes | ri.ImageFrame | None = None  # the newest image (payload or frame) not yet processed
+        self._image_kind: str | None = None  # "raw" or "compressed": the first image's kind, the one used
+        self.other_kind = 0  # images of the other kind, left (a robot publishing both is read once)
+        self._pending: bytes | _Compressed | ri.ImageFrame | None = None  # the newest image not yet processed
         self._wake = threading.Condition()
         self._stop = False
         self._subs: list[Any] = []
@@ -248,7 +258,8 @@ class CameraObjects(ObjectSource):
         if session is not None:
             handlers = {"joint_states": self.history.on_joint_states, "odom": self.history.on_odom}
             if images:
-                handlers |= {"camera_image": self.on_image, "camera_info": self.on_camera_info}
+                handlers |= {"camera_image": self.on_image, "camera_compressed": self.on_compressed,
+                             "camera_info": self.on_camera_info}
             self._subs = [
                 session.declare_subscriber(keys[t].key, guarded(self.rejects, t, fn, keys[t].key))
                 for t, fn in handlers.items()
@@ -265,6 +276,25 @@ class CameraObjects(ObjectSource):
     def on_image(self, payload: bytes) -> None:
         """Hand an Image payload to the worker (the newest waiting one wins), or without a worker decode
         and process it here. The Zenoh thread only stores it: the robot's state arrives on that thread too."""
+        if self._first_kind("raw"):
+            self._offer(payload)
+
+    def on_compressed(self, payload: bytes) -> None:
+        """A CompressedImage payload (JPEG or PNG; a robot that publishes only ``.../compressed``), as ``on_image``."""
+        if self._first_kind("compressed"):
+            self._offer(_Compressed(payload))
+
+    def _first_kind(self, kind: str) -> bool:
+        """Whether images of ``kind`` are the ones used: those of the first image that arrived."""
+        with self._wake:
+            if self._image_kind is None:
+                self._image_kind = kind
+            if kind != self._image_kind:
+                self.other_kind += 1
+                return False
+            return True
+
+    def _offer(self, payload: bytes | _Compressed) -> None:
         if self._thread is None:
             self._handle(payload)
             return
@@ -289,11 +319,11 @@ class CameraObjects(ObjectSource):
             self._pending = frame
             self._wake.notify()
 
-    def _handle(self, payload: bytes | ri.ImageFrame) -> None:
+    def _handle(self, payload: bytes | _Compressed | ri.ImageFrame) -> None:
         if isinstance(payload, ri.ImageFrame):
             self.process(payload)
             return
-        f = ri.parse_image(payload)
+        f = ri.parse_compressed(payload.payload) if isinstance(payload, _Compressed) else ri.parse_image(payload)
         if isinstance(f, rc.Rejected):
             self.rejects.reject(f.key, f.reason)
             return
@@ -694,7 +724,7 @@ class CameraObjects(ObjectSource):
             "rejected": self.rejects.counts(),
             "latency_ms_p99": float(np.percentile(self.latency_ms, 99)) if self.latency_ms else None,
             "process_ms_median": float(np.median(self.process_ms)) if self.process_ms else None,
-        }
+        } | ({"other_kind": self.other_kind} if self.other_kind else {})
 
     def close(self) -> None:
         for feed in self.feeds:  # a local camera first: nothing is submitted after this

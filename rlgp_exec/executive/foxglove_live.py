@@ -26,7 +26,7 @@ from rlgp_exec.executive import ros_messages as rm
 from rlgp_exec.executive.recorder import CAMERA_TYPES, RecordSink
 from rlgp_exec.executive.ros_record import ROS_CHANNELS, RosView
 
-__all__ = ["DEFAULT_PORT", "LATCH_S", "FoxgloveLive", "Tee"]
+__all__ = ["CLIENT_POLLER_LOGGER", "DEFAULT_PORT", "LATCH_S", "ClientDropAtInfo", "FoxgloveLive", "Tee"]
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +34,24 @@ DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
 LATCH_S = 1.0  # [s] the latched channels are sent again this often
 LATCHED = ("/robot_description", "/tf_static", "/scene_entities", "/plan_path")
 STATE_VIEW_S = 0.02  # [s] robot states closer than this to the last one are not sent (50 Hz)
+#: the SDK's logger (its Rust ``log`` records, bridged to Python logging) for a client's receive errors
+CLIENT_POLLER_LOGGER = "foxglove.websocket.connected_client.poller"
+#: what a receive error says when the client just went away (a closed tab, a dropped network link)
+CLIENT_DROPS = ("Connection reset", "Broken pipe", "without closing handshake", "Connection aborted")
+
+
+class ClientDropAtInfo(logging.Filter):
+    """The SDK's ERROR for a viewer that went away without a close frame ("Error receiving from client ...:
+    IO error: Connection reset by peer"), as the INFO event it is: a viewer leaving never harms the run.
+    Other errors of the logger stay errors."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.ERROR:
+            msg = record.getMessage()
+            if msg.startswith("Error receiving from client") and any(d in msg for d in CLIENT_DROPS):
+                record.levelno, record.levelname = logging.INFO, "INFO"
+                return logging.getLogger(record.name).isEnabledFor(logging.INFO)
+        return True
 
 
 class FoxgloveLive:
@@ -44,9 +62,12 @@ class FoxgloveLive:
             raise RlgpError(f"--foxglove {port}: a TCP port is 0..65535")
         self.on_error: Callable[[str], None] | None = None  # (a RecordSink; serving never fails a task)
         self._context = foxglove.Context()
+        self._drop_filter = ClientDropAtInfo()
+        logging.getLogger(CLIENT_POLLER_LOGGER).addFilter(self._drop_filter)
         try:
             self._server = foxglove.start_server(name="rlgp-exec", host=host, port=port, context=self._context)
         except Exception as e:  # the SDK raises its own error types for a busy or bad address
+            logging.getLogger(CLIENT_POLLER_LOGGER).removeFilter(self._drop_filter)
             raise RlgpError(f"--foxglove: cannot serve on {host}:{port}: {e}") from e
         self.port = self._server.port
         self.channels = {
@@ -126,6 +147,7 @@ class FoxgloveLive:
             self._stop.set()
         self._thread.join(timeout=2 * LATCH_S)
         self._server.stop()
+        logging.getLogger(CLIENT_POLLER_LOGGER).removeFilter(self._drop_filter)
 
     def __enter__(self) -> FoxgloveLive:
         return self

@@ -9,6 +9,9 @@ stamped with the latest joint state's stamp when it is read, which is right to w
 own latency (tens of ms on a USB camera; keep the head still while it looks). Frames are undistorted
 with the calibration (:class:`~rlgp_exec.perception.calibration.Undistorter`) before detection.
 
+In a recording (and the live view) its frames are the head camera's: JPEG CompressedImage and CameraInfo
+on the robot's camera topics (:class:`~rlgp_exec.executive.camera_record.LocalFrameTap`).
+
 A device that stops delivering is reopened every second, and said so once; a video file ends the feed
 at its end (the last poses stay until they are stale).
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -68,6 +72,7 @@ class LocalCamera:
         self._cap = open_capture(source)
         c = self.undistort.intrinsics
         objects.set_camera_model(ri.CameraModel(0.0, objects.camera_frame, c.width, c.height, c.K))
+        self.on_frame: Callable[[ri.ImageFrame], None] | None = None  # a recording's tap (LocalFrameTap)
         self.frames = 0
         self.failed_reads = 0
         self.size_mismatches = 0
@@ -96,8 +101,12 @@ class LocalCamera:
             if self.size_mismatches == 1:
                 log.warning("local camera %s: frame dropped: %s", self.source, e)
             return False
-        self.objects.submit(ri.ImageFrame(latest[0], self.objects.camera_frame, rgb))
+        frame = ri.ImageFrame(latest[0], self.objects.camera_frame, rgb)
+        self.objects.submit(frame)
         self.frames += 1
+        tap = self.on_frame  # read once: the run's end unsets it from another thread
+        if tap is not None:
+            tap(frame)
         return True
 
     def _run(self) -> None:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError
-from rlgp_exec.executive.camera_record import DEFAULT_RATE_HZ, CameraTap
+from rlgp_exec.executive.camera_record import DEFAULT_RATE_HZ, CameraTap, LocalFrameTap
 from rlgp_exec.executive.executive import Executive, TaskResult
 from rlgp_exec.executive.recorder import Recorder, RecordSink
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
@@ -152,6 +152,21 @@ def _with_live_view(stack: ExitStack, recorder: Recorder | None, port: int | Non
     return live if recorder is None else Tee(recorder, live)
 
 
+def _record_camera(stack: ExitStack, sink: RecordSink, hal: Any, objects: ObjectSource, opts: RunOptions) -> None:
+    """The camera's frames into the recording and live view: a local camera's as it reads them, else the
+    robot's camera topics through a CameraTap (closed before the recorder: entered after it)."""
+    from rlgp_exec.executive.local_camera import LocalCamera  # (as connect: OpenCV's capture only when used)
+
+    feeds = [f for f in getattr(objects, "feeds", []) if isinstance(f, LocalCamera)]
+    if feeds:
+        c = feeds[0].undistort.intrinsics
+        feeds[0].on_frame = LocalFrameTap(sink, hal.keys, c.K, (c.width, c.height), opts.camera_record_hz)
+        stack.callback(setattr, feeds[0], "on_frame", None)
+        return
+    tap = CameraTap(sink, hal.session, hal.keys, opts.camera_record_hz)
+    stack.callback(tap.close)
+
+
 def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> tuple[TaskResult, Executive]:
     """Connect, run the scene's task (or ``goal``), bring the robot to rest and disconnect."""
     with ExitStack() as stack:
@@ -161,8 +176,7 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
         if sink is not None and opts.camera_record_hz > 0 and object_source_name(opts) == "camera":
-            tap = CameraTap(sink, hal.session, hal.keys, opts.camera_record_hz)  # type: ignore[attr-defined]
-            stack.callback(tap.close)  # before the recorder closes (entered first, closed last)
+            _record_camera(stack, sink, hal, objects, opts)
         if isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
