@@ -134,6 +134,25 @@ class ReachabilityGraph:
             for j in self.nearest(self.X[i], self.params.k, exclude=int(i)):
                 if not self.G.has_edge(i, j):
                     self.add_edge(int(i), j)
+        self._canonical()
+
+    def _canonical(self) -> None:
+        """The graph rebuilt with its nodes ascending and its edges in (min, max) order: networkx keeps
+        insertion order, which Dijkstra's ties and every neighbour loop follow, so a graph must be in the
+        same order whether it was just built or read back from its file."""
+        nodes = sorted(int(i) for i in self.G.nodes)
+        edges = sorted((min(u, v), max(u, v), bool(d["checked"])) for u, v, d in self.G.edges(data=True))
+        u = np.array([e[0] for e in edges], dtype=int)
+        v = np.array([e[1] for e in edges], dtype=int)
+        weights = self.edge_costs(u, v) if edges else np.zeros(0)  # all at once, as ``load`` computes them
+        G = nx.Graph()
+        G.add_nodes_from(nodes)
+        G.add_edges_from(
+            (int(a), int(b), {"weight": float(w), "checked": e[2]})
+            for a, b, w, e in zip(u, v, weights, edges, strict=True)
+        )
+        self.G = G
+        self._tree = None
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
@@ -201,7 +220,11 @@ class ReachabilityGraph:
             raise GraphCacheError(f"{path}: arrays are inconsistent (shapes, NaN or dangling edges)")
         g = cls(limits, np.asarray(meta["plan_idx"]), RGParams(**meta["params"]), meta)
         g.X, g.Q, g.C = X.astype(float), Q.astype(float), C.astype(float)
-        g.G.add_nodes_from(int(i) for i in alive)
+        g.G.add_nodes_from(sorted(int(i) for i in alive))
+        if len(edges):  # in (min, max) order, as ``_canonical`` leaves a built graph
+            edges = np.sort(edges, axis=1)
+            order = np.lexsort((edges[:, 1], edges[:, 0]))
+            edges, checked = edges[order], checked[order]
         u, v = edges[:, 0].astype(int), edges[:, 1].astype(int)
         weights = g.edge_costs(u, v) if len(edges) else np.zeros(0)
         g.G.add_edges_from(
