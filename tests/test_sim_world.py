@@ -151,8 +151,7 @@ def test_run_refuses_perception_off_the_simulator(capsys):
 
 
 def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
-    """The dry run end to end: a sim-robot process over Zenoh, its head camera in the loop, R-LGP, TOPPRA +
-    Ruckig, the goal verified by camera."""
+    """The dry run end to end: perception, a sim-robot process over Zenoh, R-LGP, TOPPRA + Ruckig."""
     from rlgp_exec.demo import run_demo
     from rlgp_exec.executive import read_recording
 
@@ -160,8 +159,6 @@ def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
     assert report.ok, report.text()
     assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "camera", "executive", "replay"]
     assert "goal holds in the sensed world" in report.text()
-    assert "objects sensed by the head camera" in report.text()  # the demo's default, as on the robot
-    assert "from the truth" in report.text()  # each object's final error against the simulated world
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
     rec = read_recording(tmp_path / "demo.mcap")
     assert rec.complete and rec.topic("/events")[-1][1]["status"] == "succeeded"

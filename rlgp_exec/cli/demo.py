@@ -126,8 +126,8 @@ def add_demo_commands(sub: Any) -> None:
     s.add_argument("--scene", default=None,
                    help="an HSR scene with tagged objects: a file or a shipped name (default: table_clearing_hsr)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
-    s.add_argument("--objects", choices=["camera", "mocap"], default="camera",
-                   help="the executive's object source: the head camera, or the simulation's truth (mocap)")
+    s.add_argument("--objects", choices=["camera", "mocap"], default="mocap",
+                   help="the executive's object source: the simulation's truth (mocap), or the head camera")
     gui_flag(s, "the demo's recorded run (once it ends)")
     foxglove_flag(s)
     s.set_defaults(func=cmd_demo)
