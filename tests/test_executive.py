@@ -34,6 +34,7 @@ from rlgp_exec.executive.monitors import Tolerances, check_duration, check_start
 from rlgp_exec.executive.replay import replay
 from rlgp_exec.executive.runner import RunOptions, connect
 from rlgp_exec.hal import Lifecycle, make_backend
+from rlgp_exec.hal.types import GripperAction
 from rlgp_exec.planning.actions import parse_text
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene, scene_from_dict, scene_to_dict
@@ -275,6 +276,55 @@ def test_estop_stops_output_within_one_cycle_and_nothing_moves_until_rearm(sim_e
     assert hal.write_setpoint(q0[3:8], names=hal.setpoint_names[:5]).status.value == "estopped"
     ex.rearm()
     assert ex.sm.state is ExecState.IDLE and hal.lifecycle is Lifecycle.INACTIVE
+
+
+class _LaggingMocap(SimMocap):
+    """The sim's poses, stamped ``lag`` [s] behind the robot state for ``stale_calls`` stamp reads."""
+
+    def __init__(self, hal, lag: float, stale_calls: int) -> None:
+        super().__init__(hal)
+        self.lag, self.stale_calls, self.reads = lag, stale_calls, 0
+
+    def stamp(self) -> float:
+        self.reads += 1
+        t = self._hal.read_state().stamp
+        return t - self.lag if self.reads <= self.stale_calls else t
+
+
+@pytest.mark.parametrize("stale_calls, sensed", [(3, True), (10_000, False)])
+def test_object_poses_older_than_the_robot_state_are_waited_for_then_not_used(stale_calls, sensed):
+    """A motion-capture stream behind the joint states: sensing waits for poses as new as the state;
+    poses that stay older are not sensed now (the prior estimate stands), never taken as current."""
+    scene = load_scene(SCENE)
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    try:
+        hal.sim.push_object("block", 0.0, -0.06)
+        source = _LaggingMocap(hal, lag=0.3, stale_calls=stale_calls)
+        ex = Executive(hal, scene, source)
+        t0 = time.monotonic()
+        y = {o.name: o.pose[1] for o in ex.sense().objects}["block"]
+        assert abs(y - (-0.16 if sensed else -0.1)) < 1e-3, y
+        assert source.reads > 3 and (sensed or time.monotonic() - t0 >= 0.5)
+    finally:
+        hal.shutdown()
+
+
+def test_a_release_the_gripper_never_carried_out_is_a_fault_not_a_placed_object(sim_exec):
+    """An open command lost on its way (the robot never opens): the executive sees the fingers still
+    closed on the block and faults, naming it, instead of retreating with it and calling it placed."""
+    ex, hal, _ = sim_exec
+    send = hal._send_gripper
+
+    def lose_opens(cmd):
+        if cmd.action is not GripperAction.OPEN:
+            send(cmd)
+
+    hal._send_gripper = lose_opens  # type: ignore[method-assign]
+    result = ex.run()
+    assert result.status is TaskStatus.FAULT, result.detail
+    assert "the gripper did not open to let go of 'block'" in result.detail
+    assert result.executed == ("(pick block)",) and hal.sim.held == "block"
 
 
 def _cancel_during_phase(ex, hal, phase: int, after: int):
@@ -642,6 +692,8 @@ def test_mocap_transforms_round_trip_and_bad_payloads_are_named():
     back = rc.parse_transforms(rc.encode_transforms(1.5, poses))
     assert set(back) == set(poses)
     assert all(np.allclose(back[n], poses[n], atol=1e-9) for n in poses)
+    assert rc.parse_stamped_transforms(rc.encode_transforms(12.25, poses))[0] == pytest.approx(12.25, abs=1e-9)
+    assert rc.parse_stamped_transforms(rc.encode_transforms(3.0, {}))[0] == -np.inf
     with pytest.raises(RlgpError, match="TFMessage"):
         rc.parse_transforms(b"\x00\x01\x00\x00garbage")
     bad = dict(poses)

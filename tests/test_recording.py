@@ -430,7 +430,10 @@ def test_a_file_size_limit_stops_the_recording_once_and_leaves_a_replayable_pref
     assert res["later"] == [res["given"], res["n_bytes"]]  # later writes and close() did nothing
     assert path.stat().st_size == res["n_bytes"] == limit  # every byte the kernel took is kept
     rec = read_recording(path)
-    assert not rec.complete and "truncated at byte" in rec.ending and limit - 25 < rec.truncated_at < limit
+    # (the cut record starts a few bytes off full.offsets[k]: a transition's wall time varies in length)
+    assert not rec.complete and rec.truncated_at < limit
+    assert f"truncated at byte {rec.truncated_at}: the record there is cut off after {limit - rec.truncated_at} bytes" \
+        in rec.ending
     assert [m[0] for m in rec.messages] == [m[0] for m in full.messages[:k]]  # the messages before the cut
     assert [m[2] for m in rec.messages if m[0] != "/transitions"] == [  # (a transition holds its wall time)
         m[2] for m in full.messages[:k] if m[0] != "/transitions"]

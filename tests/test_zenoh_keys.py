@@ -31,3 +31,32 @@ def test_a_ros2_field_that_is_not_the_keys_topic_is_refused(tmp_path: Path, monk
     monkeypatch.setattr(zenoh_keys, "robot_dir", lambda robot: tmp_path)
     with pytest.raises(HalError, match=r"\[keys.odom\].ros2 '/hsrb/odometry'.*'/hsrb/odom'"):
         load_key_map("hsr")
+
+
+def test_one_off_commands_wait_for_room_and_streams_drop() -> None:
+    """A congested link drops a state or a setpoint (the next one replaces it), never the e-stop or a
+    gripper command: nothing sends those again (a dropped open left a block in the hand, 12 cm up)."""
+    import socket
+
+    import zenoh
+
+    from rlgp_exec.hal import make_backend
+    from rlgp_exec.hal.zenoh_keys import session_config
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        ep = f"tcp/127.0.0.1:{sock.getsockname()[1]}"
+    peer = zenoh.open(session_config(listen=ep))
+    hal = make_backend("zenoh", endpoint=ep)
+    try:
+        hal.configure()
+        pubs = hal._pubs  # the backend's publishers by topic
+        assert set(zenoh_keys.ONE_OFF_COMMANDS) < set(pubs)
+        for name, pub in pubs.items():
+            cc = zenoh.CongestionControl
+            want = cc.BLOCK if name in zenoh_keys.ONE_OFF_COMMANDS else cc.DROP
+            assert pub.congestion_control == want, name
+            assert pub.priority == zenoh.Priority.REAL_TIME, name
+    finally:
+        hal.shutdown()
+        peer.close()

@@ -44,6 +44,7 @@ BASE_GAIN = 2.0  # [1/s] odometry error correction
 GRIPPER_S = 1.5  # [s] for the gripper to close or open
 GRASP_FORCE_N = 10.0
 EMPTY_GRASP_MARGIN = 0.05  # [rad] fingers this close to fully closed: nothing in the hand
+OPENED_FRACTION = 0.5  # of the closed-to-open travel: fingers short of it after an open did not let go
 STOP_TIMEOUT_S = 3.0
 LIMIT_SNAP = 1e-3  # [rad | m] setpoints this far outside a position limit are clipped onto it
 WORLD_CHECK_CYCLES = 10  # cycles between world checks (a moved object) during a phase
@@ -138,7 +139,7 @@ class Actor:
         self._hi = np.where(self.model.limits.continuous[self.idx], np.inf, self.model.limits.upper[self.idx])
         manip = self.model.manipulator()
         self.monitored = np.array(sorted({*self.model.group("base"), *self.model.group(manip.group)}))
-        self.closed = manip.closed
+        self.closed, self.open = manip.closed, manip.open
         self.streamer: Streamer | None = None
         self.cycles = 0
         self.base_distance_m = 0.0
@@ -367,11 +368,17 @@ class Actor:
             return ActOutcome(w.status, k, None, held)
         if isinstance(w, Violation):
             return ActOutcome(ActStatus.VIOLATION, k, w, held)
-        if not grasp:
-            return None if not action.knob else held
         st = self._state()
         if isinstance(st, Violation):
             return ActOutcome(ActStatus.VIOLATION, k, st, held)
+        if not grasp:
+            if st.gripper < self.closed + OPENED_FRACTION * (self.open - self.closed):
+                what = f"the knob of {action.target!r}" if action.knob else repr(action.target)
+                return ActOutcome(ActStatus.VIOLATION, k, Violation(
+                    "gripper", Reaction.FAULT,
+                    f"the gripper did not open to let go of {what}: fingers at {st.gripper:.3f} after "
+                    f"{GRIPPER_S} s (open is {self.open:.3f}, closed {self.closed:.3f})"), held)
+            return None if not action.knob else held
         if st.gripper <= self.closed + EMPTY_GRASP_MARGIN:
             self.hal.gripper(GripperCommand.open())
             self._wait(GRIPPER_S)

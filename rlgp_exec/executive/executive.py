@@ -42,6 +42,7 @@ __all__ = ["Executive", "TaskResult", "TaskStatus"]
 log = logging.getLogger(__name__)
 S = ExecState
 PLAN_TRIES = 2  # planner calls (different seeds) per planning attempt before giving up
+FRESH_POSES_S = 0.5  # [s] sensing waits this long for object poses as new as the robot state
 ROBOT_WAIT_S = 10.0  # [s] a task starting without fresh robot state waits this long (a robot reconnecting)
 
 
@@ -239,7 +240,7 @@ class Executive:
         """Update the world model from the robot's state and the object source (``wait_s``: see
         ``_robot_state``)."""
         st = self._robot_state(wait_s)
-        poses = self.objects.poses()
+        poses = self._poses_since(st.stamp)
         self._record_detections(poses)
         self.openings = drawer_openings(self.scene, poses)
         if not self.objects.senses and self.held is not None:
@@ -248,6 +249,21 @@ class Executive:
         if self.recorder is not None:
             self.recorder.write("/scene", scene_to_dict(self.scene))
         return self.scene
+
+    def _poses_since(self, stamp: float) -> dict[str, FloatArray]:
+        """The object poses observed no earlier than the robot state at ``stamp`` [s] (a motion-capture
+        stream lags the joint states: a pose from before a release is where the hand was). Waits up to
+        FRESH_POSES_S; poses still older count as not sensed now."""
+        end = time.monotonic() + FRESH_POSES_S
+        while True:
+            t = self.objects.stamp()
+            if t is None or t >= stamp:
+                return self.objects.poses()
+            if time.monotonic() >= end:
+                log.warning("object poses at t = %.3f s are older than the robot state at t = %.3f s after "
+                            "%.1f s: not sensed now", t, stamp, FRESH_POSES_S)
+                return {}
+            time.sleep(0.01)
 
     def _look_for(self, goal: Goal) -> bool:
         """A source that can look (the camera): point the head until every object the goal names is seen,

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError, SceneError
-from rlgp_exec.hal.ros_codec import parse_transforms
+from rlgp_exec.hal.ros_codec import parse_stamped_transforms
 from rlgp_exec.hal.types import RobotState
 from rlgp_exec.hal.zenoh_keys import exact
 from rlgp_exec.robot.model import FloatArray, RobotModel
@@ -65,6 +65,11 @@ class ObjectSource(abc.ABC):
     @abc.abstractmethod
     def poses(self) -> dict[str, FloatArray]:
         """T_world_object (4, 4) of every object seen now (unseen objects are absent)."""
+
+    def stamp(self) -> float | None:
+        """Robot-clock time [s] of the oldest observation in ``poses()``; None when the source has no such
+        clock (the file, the camera, which gates its own age)."""
+        return None
 
     def look_for(self, names: Sequence[str], hal: Any) -> Any:
         """Look (move the robot's head through ``hal``) until ``names`` are seen; what was found, or None
@@ -109,6 +114,7 @@ class ZenohMocap(ObjectSource):
         self._lock = threading.Lock()
         self._poses: dict[str, FloatArray] = {}
         self._wall = -math.inf
+        self._stamp = -math.inf
         self.rejected = 0
         self._sub = session.declare_subscriber(self.key, self._on_sample)
 
@@ -118,13 +124,17 @@ class ZenohMocap(ObjectSource):
             log.warning("mocap: ignored a sample on %s (not exactly %s)", sample.key_expr, self.key)
             return
         try:
-            poses = parse_transforms(sample.payload.to_bytes())
+            stamp, poses = parse_stamped_transforms(sample.payload.to_bytes())
         except RlgpError as e:
             self.rejected += 1
             log.warning("mocap: %s", e)
             return
         with self._lock:
-            self._poses, self._wall = poses, time.monotonic()
+            self._poses, self._wall, self._stamp = poses, time.monotonic(), stamp
+
+    def stamp(self) -> float | None:
+        with self._lock:
+            return self._stamp
 
     def poses(self) -> dict[str, FloatArray]:
         with self._lock:

@@ -32,6 +32,7 @@ __all__ = [
     "encode_twist",
     "parse_joint_state",
     "parse_odometry",
+    "parse_stamped_transforms",
     "parse_trajectory",
     "parse_transforms",
     "parse_twist",
@@ -246,13 +247,20 @@ def encode_transforms(stamp: float, T_parent_child: dict[str, FloatArray], paren
 def parse_transforms(payload: bytes) -> dict[str, FloatArray]:
     """The (4, 4) transforms of a TFMessage by child frame; raises HalError naming what is wrong (bad CDR,
     a non-finite value, a quaternion that is not unit length)."""
+    return parse_stamped_transforms(payload)[1]
+
+
+def parse_stamped_transforms(payload: bytes) -> tuple[float, dict[str, FloatArray]]:
+    """``parse_transforms`` and the oldest header stamp [s] among the transforms (-inf for none)."""
     from scipy.spatial.transform import Rotation
 
     msg = decode(payload, "tf2_msgs/msg/TFMessage")
     if isinstance(msg, Rejected):
         raise HalError(f"TFMessage: {msg.reason}")
     out = {}
+    stamp = math.inf
     for tf in msg.transforms:
+        stamp = min(stamp, tf.header.stamp.sec + 1e-9 * tf.header.stamp.nanosec)
         tr, q = tf.transform.translation, tf.transform.rotation
         v = np.array([tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w], float)
         if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
@@ -261,4 +269,4 @@ def parse_transforms(payload: bytes) -> dict[str, FloatArray]:
         T[:3, :3] = Rotation.from_quat(v[3:]).as_matrix()
         T[:3, 3] = v[:3]
         out[str(tf.child_frame_id)] = T
-    return out
+    return (stamp if out else -math.inf), out

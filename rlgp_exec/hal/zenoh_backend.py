@@ -31,6 +31,7 @@ from rlgp_exec.hal.zenoh_keys import (
     DEFAULT_ENDPOINT,
     EXECUTIVE_LOST,
     EXECUTIVE_SILENT,
+    ONE_OFF_COMMANDS,
     control_publisher,
     exact,
     load_key_map,
@@ -110,7 +111,7 @@ class ZenohBackend(RobotInterface):
         ]
         for t in k.topics.values():
             if t.direction == "command":
-                self._pubs[t.name] = control_publisher(s, t.key)
+                self._pubs[t.name] = control_publisher(s, t.key, must_arrive=t.name in ONE_OFF_COMMANDS)
         self._pubs["heartbeat"] = control_publisher(s, k.heartbeat)
         self._token = s.liveliness().declare_token(k.alive_executive)
         self._keepalive_stop.clear()

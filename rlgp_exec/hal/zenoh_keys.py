@@ -27,6 +27,7 @@ __all__ = [
     "DEFAULT_ENDPOINT",
     "EXECUTIVE_LOST",
     "EXECUTIVE_SILENT",
+    "ONE_OFF_COMMANDS",
     "KeyMap",
     "Topic",
     "control_publisher",
@@ -46,6 +47,7 @@ _TLS_CONNECT = ("root_ca_certificate",)
 # clears them
 EXECUTIVE_SILENT = "executive silent: no command or keepalive within 0.5 s: holding position"
 EXECUTIVE_LOST = "executive lost: holding position"
+ONE_OFF_COMMANDS = ("estop", "grasp", "gripper")  # sent once, not streamed: see control_publisher
 _REQUIRED = ("joint_states", "odom", "runstop", "faults", "arm", "head", "gripper", "grasp", "cmd_vel", "estop")
 
 
@@ -205,13 +207,18 @@ def _check_tls(c: Any, config_file: str | Path | None) -> None:
                     raise HalError(f"zenoh endpoint {ep!r} is TLS but transport/link/tls lacks {missing} ({where})")
 
 
-def control_publisher(session: Any, key: str) -> Any:
+def control_publisher(session: Any, key: str, must_arrive: bool = False) -> Any:
     """A publisher for the robot's state and commands: at real-time priority, sent at once (not batched).
     Camera frames share the link at a lower priority: at the default priority a frame's fragments ahead of a
-    joint state held it up past the state watchdog."""
+    joint state held it up past the state watchdog. A stream (states, setpoints, keepalives) drops a sample
+    when the link is congested, as the next one replaces it; a one-off command (``must_arrive``: the e-stop,
+    the gripper) waits for room instead, as nothing sends it again."""
     import zenoh
 
-    return session.declare_publisher(key, priority=zenoh.Priority.REAL_TIME, express=True)
+    congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
+    return session.declare_publisher(
+        key, priority=zenoh.Priority.REAL_TIME, express=True, congestion_control=congestion
+    )
 
 
 def open_session(config: Any, what: str) -> Any:
