@@ -178,7 +178,7 @@ def test_a_local_cameras_frames_are_recorded_on_the_head_cameras_topics(tmp_path
     from rlgp_exec.executive.camera_source import CameraObjects
     from rlgp_exec.executive.local_camera import LocalCamera
     from rlgp_exec.executive.recorder import Recorder
-    from rlgp_exec.executive.runner import RunOptions, _record_camera
+    from rlgp_exec.executive.runner import RunOptions, record_camera
     from rlgp_exec.robot import load_robot
 
     scene, model, keys = load_scene(SCENE), load_robot("hsr"), load_key_map("hsr")
@@ -200,7 +200,7 @@ def test_a_local_cameras_frames_are_recorded_on_the_head_cameras_topics(tmp_path
     src.feeds.append(local)
     try:
         with Recorder(path) as rec, ExitStack() as stack:
-            _record_camera(stack, rec, SimpleNamespace(keys=keys, session=None), src, opts)
+            record_camera(stack, rec, SimpleNamespace(keys=keys, session=None), src, opts)
             assert local.on_frame is not None
             local.start()
             assert local.ended.wait(20.0)
@@ -223,3 +223,58 @@ def test_a_local_cameras_frames_are_recorded_on_the_head_cameras_topics(tmp_path
     stamps = [i.header.stamp.sec + i.header.stamp.nanosec * 1e-9 for i in images]
     assert all(b - a >= 0.25 - 1e-6 for a, b in itertools.pairwise(stamps))
     assert abs(stamps[-1] - time.time()) < 60  # the recording's (wall) clock
+
+
+def test_the_daemons_task_recordings_hold_a_local_cameras_frames(tmp_path):
+    """The daemon with a local camera: each task's MCAP holds the frames read while the task ran, on the
+    head camera's topics, and the camera stops feeding the recording when the task ends."""
+    from types import SimpleNamespace
+
+    from mcap_ros2.reader import read_ros2_messages
+
+    from rlgp_exec.executive.camera_record import camera_topics
+    from rlgp_exec.executive.camera_source import CameraObjects
+    from rlgp_exec.executive.daemon import Daemon, DaemonOptions, _Task
+    from rlgp_exec.executive.local_camera import LocalCamera
+    from rlgp_exec.executive.runner import RunOptions
+    from rlgp_exec.robot import load_robot
+
+    scene, model, keys = load_scene(SCENE), load_robot("hsr"), load_key_map("hsr")
+    rng = np.random.default_rng(6)
+    video = tmp_path / "lab.avi"
+    out = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (640, 480))
+    for _ in range(30):
+        out.write(rng.integers(0, 255, (480, 640, 3), dtype=np.uint8))
+    out.release()
+    cal = _opencv_file(tmp_path / "cam.yaml")
+    src = CameraObjects(None, keys, model, scene, images=False)
+    names = tuple(model.joint_names[3:])
+    src.history.on_joint_states(rc.encode_joint_state(1.0, names, model.home(scene.robot.base)[3:],
+                                                      np.zeros(len(names))))
+    local = LocalCamera(str(video), cal, src)
+    src.feeds.append(local)
+    opts = RunOptions(backend="zenoh", objects="camera", camera=str(video), calibration=cal, camera_record_hz=4.0)
+    daemon = Daemon(scene, opts, DaemonOptions(record_dir=tmp_path / "tasks"))
+    (tmp_path / "tasks").mkdir()
+    daemon._hal, daemon._objects = SimpleNamespace(keys=keys, session=None), src
+
+    class TaskThatWatches:  # the executive's part: the task runs while the camera reads the video
+        def attach(self, rec):
+            self.rec = rec
+
+        def run(self, literals):
+            assert local.on_frame is not None and self.rec is not None
+            local.start()
+            assert local.ended.wait(20.0)
+            return "done"
+
+    daemon.executive = TaskThatWatches()  # type: ignore[assignment]
+    try:
+        assert daemon._run(_Task(1, ("(on block tray)",))) == "done"
+        assert local.on_frame is None and daemon.executive.rec is None
+    finally:
+        src.close()
+    (path,) = (tmp_path / "tasks").glob("task0001-*.mcap")
+    image_topic, _ = camera_topics(keys)
+    images = [m for m in read_ros2_messages(str(path), topics=[image_topic])]
+    assert 5 <= len(images) <= 10, len(images)  # 2 s of video at 4 Hz

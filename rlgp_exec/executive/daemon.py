@@ -46,10 +46,9 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError, SceneError
-from rlgp_exec.executive.camera_record import CameraTap
 from rlgp_exec.executive.executive import Executive, TaskResult, TaskStatus
 from rlgp_exec.executive.recorder import Recorder
-from rlgp_exec.executive.runner import RunOptions, connect, object_source_name
+from rlgp_exec.executive.runner import RunOptions, connect, object_source_name, record_camera
 from rlgp_exec.executive.states import ExecState, Transition
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.literals import parse_goal
@@ -411,22 +410,19 @@ class Daemon:
             except (OSError, RlgpError) as e:  # the task runs; the status says it is not recorded
                 log.error("daemon: task %d not recorded: %s", task.id, e)
                 self.recording_error = f"task {task.id}: {e}"
-        tap = None
-        hz = self.run_opts.camera_record_hz
-        if recorder is not None and hz > 0 and object_source_name(self.run_opts) == "camera":
-            try:
-                tap = CameraTap(recorder, self._hal.session, self._hal.keys, hz)
-            except Exception as e:  # a session that refuses the subscription: the task is recorded without images
-                log.error("daemon: task %d recorded without the camera's images: %s", task.id, e)
-        ex.attach(recorder)
-        try:
-            return ex.run(list(task.literals))
-        finally:
-            ex.attach(None)
-            if tap is not None:
-                tap.close()
+        with contextlib.ExitStack() as stack:
             if recorder is not None:
-                recorder.close()
+                stack.callback(recorder.close)
+            hz = self.run_opts.camera_record_hz
+            if recorder is not None and hz > 0 and object_source_name(self.run_opts) == "camera":
+                try:  # the robot's camera topics, or a local camera's frames as it reads them
+                    record_camera(stack, recorder, self._hal, self._objects, self.run_opts)
+                except Exception as e:  # a session that refuses the subscription: recorded without images
+                    log.error("daemon: task %d recorded without the camera's images: %s", task.id, e)
+            ex.attach(recorder)
+            stack.callback(ex.attach, None)
+            return ex.run(list(task.literals))
+        raise AssertionError("unreachable")
 
 
 _WAITING = {"robot": "fresh robot state", "rearm": "an operator's rearm", "reset": "an operator's reset"}

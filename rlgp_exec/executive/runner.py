@@ -33,7 +33,7 @@ from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.scene import Scene
 
-__all__ = ["OBJECT_SOURCES", "RunOptions", "connect", "goal_objects", "object_source_name", "run_task"]
+__all__ = ["OBJECT_SOURCES", "RunOptions", "connect", "goal_objects", "object_source_name", "record_camera", "run_task"]
 
 log = logging.getLogger(__name__)
 OBJECT_SOURCES = ("camera", "mocap", "file")
@@ -152,7 +152,7 @@ def _with_live_view(stack: ExitStack, recorder: Recorder | None, port: int | Non
     return live if recorder is None else Tee(recorder, live)
 
 
-def _record_camera(stack: ExitStack, sink: RecordSink, hal: Any, objects: ObjectSource, opts: RunOptions) -> None:
+def record_camera(stack: ExitStack, sink: RecordSink, hal: Any, objects: ObjectSource, opts: RunOptions) -> None:
     """The camera's frames into the recording and live view: a local camera's as it reads them, else the
     robot's camera topics through a CameraTap (closed before the recorder: entered after it)."""
     from rlgp_exec.executive.local_camera import LocalCamera  # (as connect: OpenCV's capture only when used)
@@ -176,7 +176,7 @@ def run_task(scene: Scene, opts: RunOptions, goal: list[str] | None = None) -> t
         stack.callback(hal.shutdown)
         stack.callback(objects.close)
         if sink is not None and opts.camera_record_hz > 0 and object_source_name(opts) == "camera":
-            _record_camera(stack, sink, hal, objects, opts)
+            record_camera(stack, sink, hal, objects, opts)
         if isinstance(objects, ZenohMocap):  # give the mocap stream a moment to arrive
             end = time.monotonic() + 2.0
             while not objects.poses() and time.monotonic() < end:
