@@ -588,3 +588,13 @@ def test_a_graph_read_back_from_its_file_is_the_one_built_to_the_last_bit(tmp_pa
     arrays["edges"], arrays["checked"] = arrays["edges"][flip][:, ::-1], arrays["checked"][flip]
     np.savez(tmp_path / "shuffled.npz", **arrays)
     assert _exact_order(ReachabilityGraph.load(tmp_path / "shuffled.npz", model.limits, meta)) == _exact_order(built)
+
+
+def test_a_graph_is_the_same_built_on_one_process_or_two():
+    """The sampling jobs are seeded by job, not by process: one core (or a bench's daemonic planning child,
+    which may not fork) builds the graph two cores build, so a plan does not depend on the machine."""
+    scene = load_scene(SORTING)
+    params = RGParams(samples=40, seed=2)
+    one, _ = build_graph(scene, params=params, workers=1)
+    two, _ = build_graph(scene, params=params, workers=2)
+    assert _exact_order(one) == _exact_order(two)

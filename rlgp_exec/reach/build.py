@@ -34,6 +34,7 @@ __all__ = ["BuildStats", "build_graph", "cache_dir", "graph_meta", "load_or_buil
 
 log = logging.getLogger(__name__)
 _DEFAULT = RGParams()
+BUILD_CHUNKS = 2  # seeded sampling jobs per graph, run in parallel where cores allow
 WARM_RADIUS = 0.35  # [m] warm-start IK from a node this close to the target
 
 
@@ -154,18 +155,22 @@ def _worker(args: tuple) -> dict:
 def build_graph(
     scene: Scene, manipulator: str | None = None, params: RGParams = _DEFAULT, workers: int | None = None
 ) -> tuple[ReachabilityGraph, BuildStats]:
-    """Sample ``params.samples`` valid nodes in ``workers`` processes and connect them (unchecked)."""
+    """Sample ``params.samples`` valid nodes in BUILD_CHUNKS seeded jobs on up to ``workers`` processes and
+    connect them (unchecked): the same graph whatever the core count."""
     t0 = time.perf_counter()
     model = load_robot(scene.robot.name)
     manip = model.manipulator(manipulator).name
-    workers = max(1, min(workers or os.cpu_count() or 1, params.samples))
-    shares = [params.samples // workers + (i < params.samples % workers) for i in range(workers)]
+    chunks = max(1, min(BUILD_CHUNKS, params.samples))
+    shares = [params.samples // chunks + (i < params.samples % chunks) for i in range(chunks)]
+    workers = max(1, min(workers or os.cpu_count() or 1, chunks))
+    if workers > 1 and mp.current_process().daemon:  # a bench's planning child: it may not fork workers
+        workers = 1
     clock = budget.cpu_clock() if workers > 1 else None
     jobs = [(manip, params, n, params.seed * 1000 + i, clock) for i, n in enumerate(shares)]
     _FORKED["scene"] = scene
     try:
         if workers == 1:
-            results = [_worker(jobs[0])]
+            results = [_worker(job) for job in jobs]
         else:  # the workers share what the budget has left (their CPU time counts once they have ended)
             with budget.shared(workers), mp.get_context("fork").Pool(workers) as pool:
                 results = pool.map(_worker, jobs)
