@@ -20,6 +20,7 @@ from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray, Perception
 from rlgp_exec.perception.detector import DetectionResult, ImageStatus, TagDetector
 from rlgp_exec.perception.pose import estimate_tag_pose
 from rlgp_exec.perception.registry import TagRegistry
+from rlgp_exec.perception.resting import RestingSupports
 from rlgp_exec.perception.tracker import ObjectTracker, Observation
 from rlgp_exec.scene import Scene
 
@@ -61,11 +62,15 @@ class Perception:
         detector: TagDetector | None = None,
         tracker: ObjectTracker | None = None,
         max_pos_std_m: float = math.inf,
+        supports: RestingSupports | None = None,
     ) -> None:
         """``max_pos_std_m`` [m]: a tag pose whose error figure is larger (a small tag, far away) places
-        no object: its depth error along the ray would put a resting object into or above its support."""
+        no object: its depth error along the ray would put a resting object into or above its support.
+        ``supports``: each observation of an object resting on one of them is moved along its viewing ray
+        onto it before it is fused (None: observations are fused as PnP gives them)."""
         self.registry, self.camera = registry, camera
         self.max_pos_std_m = max_pos_std_m
+        self.supports = supports
         self.too_far = 0  # tag poses not fused: error figure over max_pos_std_m
         self.detector = detector or TagDetector()
         self.tracker = tracker or ObjectTracker()
@@ -82,9 +87,12 @@ class Perception:
                 )
         return self.locate(self.detector.detect(image), T_wc, stamp)
 
-    def locate(self, result: DetectionResult, T_world_camera: object, stamp: float) -> PerceptionReport:
+    def locate(
+        self, result: DetectionResult, T_world_camera: object, stamp: float, lifted: frozenset[str] = frozenset()
+    ) -> PerceptionReport:
         """The second half of :meth:`process`: PnP, world frame and tracker for tags already detected (a
-        caller sharing the tracker across threads detects outside its lock and locates inside it)."""
+        caller sharing the tracker across threads detects outside its lock and locates inside it).
+        ``lifted``: objects known not to rest on anything (in the hand): not moved onto a support."""
         T_wc = _check_pose(T_world_camera)
         _check_stamp(stamp)
         rejected = [why for _, why in result.rejected]
@@ -92,6 +100,7 @@ class Perception:
             log.warning("blank image at t=%.3f: nothing to detect", stamp)
         observations = []
         R_cw = T_wc[:3, :3].T
+        others = {n: e.T_world_object for n, e in self.tracker.estimates().items() if n not in lifted}
         for det in result.detections:
             mount = self.registry.get(det.tag_id)
             if mount is None:
@@ -111,7 +120,10 @@ class Perception:
                 log.debug("tag %d: error figure %.0f mm over %.0f mm: too far to place %s", det.tag_id,
                           pose.pos_std_m * 1e3, self.max_pos_std_m * 1e3, mount.object)
                 continue
-            T_wo = T_wc @ pose.T_camera_tag @ np.linalg.inv(mount.T_object_tag)
+            T_wt = T_wc @ pose.T_camera_tag
+            T_wo = T_wt @ np.linalg.inv(mount.T_object_tag)
+            if self.supports is not None and mount.object not in lifted:
+                T_wo = self.supports.onto_support(mount.object, T_wo, T_wt[:3, 3], T_wc[:3, 3], pose.pos_std_m, others)
             observations.append(Observation(mount.object, det.tag_id, T_wo, pose.pos_std_m, pose.rot_std_rad, stamp))
         for why in rejected[len(result.rejected) :]:
             log.warning("tag rejected: %s", why)

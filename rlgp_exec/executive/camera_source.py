@@ -54,6 +54,7 @@ from rlgp_exec.perception.look_around import candidate_points
 from rlgp_exec.perception.pipeline import Perception
 from rlgp_exec.perception.pose import MIN_CORNER_SIGMA_PX
 from rlgp_exec.perception.registry import TagRegistry
+from rlgp_exec.perception.resting import RestingSupports
 from rlgp_exec.perception.tracker import ObjectEstimate, ObjectTracker
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
@@ -223,7 +224,8 @@ class CameraObjects(ObjectSource):
         self.registry = TagRegistry.from_scene(scene)
         tracker = ObjectTracker(max_age_s=max_age_s, gate_sigma=GATE_SIGMA, gate_min_m=GATE_MIN_M, confirm=CONFIRM)
         self.perception = Perception(
-            self.registry, camera_for_robot(model.name), TagDetector(detector), tracker, max_pos_std_m=PLACE_STD_MAX_M
+            self.registry, camera_for_robot(model.name), TagDetector(detector), tracker, max_pos_std_m=PLACE_STD_MAX_M,
+            supports=RestingSupports(scene),
         )
         self.head_views = HeadViews(model, scene, self.perception.camera)  # look_for's thread only (PyBullet)
         self.rejects = RejectCounter("camera")
@@ -392,7 +394,8 @@ class CameraObjects(ObjectSource):
         with self._lock:
             self.perception.camera = cam
             try:
-                rep = self.perception.locate(found, T_world_camera, frame.stamp)
+                lifted = frozenset() if self._held is None else frozenset({self._held[0]})
+                rep = self.perception.locate(found, T_world_camera, frame.stamp, lifted)
             except PerceptionError as e:
                 self.rejects.reject("bad_image", str(e))
                 return False
@@ -721,6 +724,7 @@ class CameraObjects(ObjectSource):
             "frames": self.frames,
             "skipped": self.skipped,
             "too_far": self.perception.too_far,  # tag poses too uncertain to place an object (PLACE_STD_MAX_M)
+            "onto_support": 0 if self.perception.supports is None else self.perception.supports.corrected,
             "rejected": self.rejects.counts(),
             "latency_ms_p99": float(np.percentile(self.latency_ms, 99)) if self.latency_ms else None,
             "process_ms_median": float(np.median(self.process_ms)) if self.process_ms else None,
