@@ -310,6 +310,37 @@ def test_object_poses_older_than_the_robot_state_are_waited_for_then_not_used(st
         hal.shutdown()
 
 
+class _ForgetfulSource(SimMocap):
+    """The sim's poses until ``forget`` is set; then nothing (a camera whose estimate of an object put
+    down far from where the robot ends has aged out)."""
+
+    def __init__(self, hal) -> None:
+        super().__init__(hal)
+        self.forget = False
+
+    def poses(self):
+        return {} if self.forget else super().poses()
+
+
+def test_an_object_put_down_then_out_of_sight_is_verified_where_it_was_last_seen(tmp_path):
+    """Seen while acting, its estimate gone by the goal check: the world model keeps where it was last
+    seen (on its target), not the pose it was planned from (where it is no longer)."""
+    scene = load_scene(SCENE)
+    hal = make_backend("sim", scene=scene)
+    hal.configure()
+    try:
+        source = _ForgetfulSource(hal)
+        ex = Executive(hal, scene, source)
+        ex.actor.on_phase = lambda k, n: setattr(source, "forget", source.forget or k == n - 1)
+        result = ex.run()
+        assert source.forget and result.ok, result.detail
+        assert result.replans == 0 and "goal holds in the sensed world" in result.detail, result.detail
+        T_true = hal.sim.object_pose("block")
+        assert np.linalg.norm(np.asarray(ex.scene.object("block").pose[:2]) - T_true[:2, 3]) < 0.01
+    finally:
+        hal.shutdown()
+
+
 def test_a_release_the_gripper_never_carried_out_is_a_fault_not_a_placed_object(sim_exec):
     """An open command lost on its way (the robot never opens): the executive sees the fingers still
     closed on the block and faults, naming it, instead of retreating with it and calling it placed."""

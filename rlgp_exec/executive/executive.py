@@ -145,6 +145,9 @@ class Executive:
         self.verified: dict[str, str] = {}  # the task's objects once unverified, and how the camera saw them
         self.last_look: object | None = None  # the last look_for's result (the camera's LookResult)
         self.last_plan: Plan | None = None
+        #: T_world_object (4, 4) of what the world checks saw while acting, newest last: what SENSE falls
+        #: back on for an object whose estimate aged out since (one put down far from where the robot ends)
+        self._seen_acting: dict[str, FloatArray] = {}
 
     # ------------------------------------------------------------------ requests (any thread)
     def estop(self) -> None:
@@ -242,6 +245,11 @@ class Executive:
         st = self._robot_state(wait_s)
         poses = self._poses_since(st.stamp)
         self._record_detections(poses)
+        remembered = {n: T for n, T in self._seen_acting.items() if n != self.held and n not in poses}
+        if remembered:
+            log.info("not sensed now, at their last pose seen while acting: %s", sorted(remembered))
+        poses = {**remembered, **poses}
+        self._seen_acting = {}
         self.openings = drawer_openings(self.scene, poses)
         if not self.objects.senses and self.held is not None:
             poses.pop(self.held, None)  # assumed poses know nothing of the grasp: it is as executed
@@ -354,6 +362,7 @@ class Executive:
                 return None
             poses = self.objects.poses()
             self._record_detections(poses)
+            self._seen_acting.update(poses)
             if self.unverified:
                 self._verified(poses)
             for o in plan_scene.objects:
