@@ -1,7 +1,9 @@
 """``--gui``: the motion in PyBullet's own window, where a display exists.
 
-The window shows the same world the headless renderer draws (``sim.world``), played in real time by a
-player of ``animate`` (a plan's timed trajectory or a recording); it stays open until it is closed.
+The window shows the same world the headless renderer draws (``sim.world``), framed as its overview
+picture, played in real time by a player of ``animate`` (a plan's timed trajectory or a recording); it stays
+open until ``q`` or Esc is pressed in it (closing the window ends the process from inside PyBullet's X
+client instead, exit status 1, after every output was written).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ __all__ = ["require_display", "show_plan", "show_recording"]
 log = logging.getLogger(__name__)
 
 
+QUIT_KEYS = (ord("q"), 27)  # q, Esc
 _NO_DISPLAY_HINT = "(render headless with plan/replay --animate FILE.gif|mp4, or use ssh -X / a desktop session)"
 
 
@@ -62,14 +65,19 @@ def _play(scene, make_player, hold: bool = True) -> None:
     if cid < 0:
         raise RlgpError(f"PyBullet could not open its window on display {os.environ.get('DISPLAY')!r}")
     try:
+        p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=cid)  # no side panels: the scene only
         world = build_world(scene, cid)
         duration, set_time = make_player(world)
-        log.info("gui: playing %.1f s of motion; close the window to go on", duration)
+        _frame(world)
+        log.info("gui: playing %.1f s of motion; press q or Esc in the window to go on", duration)
         t0 = time.monotonic()
         while p.isConnected(cid):
             t = time.monotonic() - t0
             set_time(min(t, duration))
             if t >= duration and not hold:
+                break
+            keys = p.getKeyboardEvents(physicsClientId=cid)
+            if any(k in keys and keys[k] & p.KEY_WAS_TRIGGERED for k in QUIT_KEYS):
                 break
             time.sleep(1 / 30)
     except p.error:  # the window was closed mid-update
@@ -77,6 +85,16 @@ def _play(scene, make_player, hold: bool = True) -> None:
     finally:
         if p.isConnected(cid):
             p.disconnect(cid)
+
+
+def _frame(world) -> None:
+    """Point the window's camera as the overview picture is taken (``world.render``)."""
+    import pybullet as p
+
+    from rlgp_exec.world.render import overview_framing
+
+    target, distance, yaw, pitch = overview_framing(world)
+    p.resetDebugVisualizerCamera(distance, yaw, pitch, target, physicsClientId=world.client)
 
 
 def show_plan(scene, timed, hold: bool = True) -> None:

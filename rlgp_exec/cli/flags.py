@@ -53,7 +53,8 @@ def json_flag(s: argparse.ArgumentParser, what: str = "the result") -> None:
 
 def gui_flag(s: argparse.ArgumentParser, what: str) -> None:
     s.add_argument("--gui", action="store_true",
-                   help=f"open PyBullet's window and play {what} in it (needs $DISPLAY; without one: exit 2)")
+                   help=f"open PyBullet's window and play {what} in it; q or Esc there ends it (needs $DISPLAY; "
+                        "without one: exit 2)")
 
 
 def animate_flags(s: argparse.ArgumentParser, what: str) -> None:

@@ -14,7 +14,7 @@ from rlgp_exec.errors import RlgpError
 from rlgp_exec.scene import Scene
 from rlgp_exec.world.pybullet_world import World, build_world
 
-__all__ = ["VIEWS", "Camera", "camera", "render_scene_png", "render_world"]
+__all__ = ["VIEWS", "Camera", "camera", "overview_framing", "render_scene_png", "render_world"]
 
 log = logging.getLogger(__name__)
 VIEWS = ("overview", "top", "robot")
@@ -28,6 +28,15 @@ def _scene_bounds(world: World) -> tuple[np.ndarray, np.ndarray]:
             a, z = p.getAABB(b, link, physicsClientId=world.client)
             lo, hi = np.minimum(lo, a), np.maximum(hi, z)
     return lo, hi
+
+
+def overview_framing(world: World) -> tuple[list[float], float, float, float]:
+    """The overview's camera: target (3,) [m], distance [m], yaw and pitch [deg] (PyBullet's convention),
+    behind and above the robot's start heading, the whole scene in view."""
+    lo, hi = _scene_bounds(world)
+    span = float(np.max(hi[:2] - lo[:2]))
+    yaw = float(np.degrees(world.scene.robot.base[2])) - 35.0
+    return ((lo + hi) / 2).tolist(), 1.0 * span + 1.2, yaw, -38.0
 
 
 class Camera(NamedTuple):
@@ -53,14 +62,13 @@ def camera(world: World, width: int = 960, height: int = 720, view: str = "overv
         view_m = p.computeViewMatrix(eye.tolist(), target.tolist(), up.tolist())
         proj = p.computeProjectionMatrixFOV(45.0, aspect, 0.02, 20.0)
     else:
-        lo, hi = _scene_bounds(world)
-        centre = (lo + hi) / 2
-        span = float(np.max(hi[:2] - lo[:2]))
         if view == "top":
-            view_m = p.computeViewMatrixFromYawPitchRoll(centre.tolist(), 1.3 * span + 1.0, 0, -89.9, 0, 2)
+            lo, hi = _scene_bounds(world)
+            span = float(np.max(hi[:2] - lo[:2]))
+            view_m = p.computeViewMatrixFromYawPitchRoll(((lo + hi) / 2).tolist(), 1.3 * span + 1.0, 0, -89.9, 0, 2)
         else:
-            yaw = float(np.degrees(world.scene.robot.base[2])) - 35.0
-            view_m = p.computeViewMatrixFromYawPitchRoll(centre.tolist(), 1.0 * span + 1.2, yaw, -38, 0, 2)
+            target, distance, yaw, pitch = overview_framing(world)
+            view_m = p.computeViewMatrixFromYawPitchRoll(target, distance, yaw, pitch, 0, 2)
         proj = p.computeProjectionMatrixFOV(50.0, aspect, 0.05, 50.0)
     return Camera(tuple(view_m), tuple(proj))
 
