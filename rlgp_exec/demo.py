@@ -7,9 +7,9 @@ perceived scene replaces the file's poses. Robot: ``sim-robot`` runs the true wo
 and speaks the HSR's Zenoh interface, its head camera (``rlgp_exec.sim.camera_node``) rendered in a process of
 its own and published as ROS 2 images. Camera: the executive's camera source reads those images over
 Zenoh, points the head at the task's objects and reports each one's error against the true world.
-Executive: SENSE (the robot's state; object poses from the server's mocap stream by default;
-``objects="camera"`` senses by the head camera: objects too small to detect from where the robot stands
-planned unverified and checked when seen, drawers and what is inside them kept by the hand),
+Executive: SENSE (the robot's state; object poses by the head camera: objects too small to detect from
+where the robot stands planned unverified and checked when seen, drawers and what is inside them kept by
+the hand; ``objects="mocap"`` senses the server's mocap stream, the simulation's truth, instead),
 PLAN (R-LGP, validated by replay), TIME (TOPPRA), ACT (Ruckig at 100 Hz over Zenoh, monitored), VERIFY (the
 goal literals on the sensed poses; the report gives each object's final error against the truth).
 Everything is recorded to MCAP; the base path is plotted from the recording.
@@ -29,16 +29,14 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 
-__all__ = ["DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
+__all__ = ["DEMO_OBJECTS", "DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
 
 log = logging.getLogger(__name__)
 
 DEMO_SCENE = "table_clearing_hsr"  # the R-LGP paper's task: knob, drawer, cup against a wall, drops
 DEMO_SCENES = ("table_clearing_hsr", "sorting_hsr")  # HSR scenes with tagged objects
 PERTURB_M = 0.04  # [m] how far the true objects are from the file
-# the executive's object source: by camera a small far tag's depth error can still sink a block 2 cm into
-# its support, and the sensed world is refused; the truth keeps `make demo` a reliable check
-DEMO_OBJECTS = "mocap"
+DEMO_OBJECTS = "camera"  # the executive's object source, as on the robot; "mocap" senses the simulation's truth
 
 
 def _against_truth(sensed: object, endpoint: str) -> str:

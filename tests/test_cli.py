@@ -125,18 +125,22 @@ def test_demo_takes_a_users_tagged_hsr_scene_and_refuses_others(tmp_path, capsys
     assert main(["-q", "demo", "--scene", str(untagged)]) == 2
     assert "no tagged objects" in capsys.readouterr().err
     seen: list[str] = []
+    sensed: list[str] = []
 
-    def run_demo(out, seed=0, scene_name="", objects="mocap", foxglove=None):
+    def run_demo(out, seed=0, scene_name="", objects="", foxglove=None):
         from rlgp_exec.demo import DemoReport, Stage
         from rlgp_exec.scene import load_scene
 
         seen.append(scene_name)
+        sensed.append(objects)
         return DemoReport(load_scene(resolve_scene(scene_name)).name, [Stage("scene", True, "loaded")])
 
     monkeypatch.setattr("rlgp_exec.demo.run_demo", run_demo)
     assert main(["-q", "demo", "--scene", str(own), "--out", str(tmp_path / "d")]) == 0
     assert main(["-q", "demo", "--scene", "sorting_hsr", "--out", str(tmp_path / "d")]) == 0
-    assert seen == [str(own), str(shipped_scene_dir() / "sorting_hsr.toml")]
+    assert main(["-q", "demo", "--objects", "mocap", "--out", str(tmp_path / "d")]) == 0
+    assert seen[:2] == [str(own), str(shipped_scene_dir() / "sorting_hsr.toml")]
+    assert sensed == ["camera", "camera", "mocap"]  # the head camera unless asked
 
 
 def test_gui_without_a_display_exits_2_before_any_work(monkeypatch, capsys, tmp_path):

@@ -151,7 +151,8 @@ def test_run_refuses_perception_off_the_simulator(capsys):
 
 
 def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
-    """The dry run end to end: perception, a sim-robot process over Zenoh, R-LGP, TOPPRA + Ruckig."""
+    """The dry run end to end: a sim-robot process over Zenoh, sensing by its head camera, R-LGP, TOPPRA +
+    Ruckig; the report gives each object's final error against the true world."""
     from rlgp_exec.demo import run_demo
     from rlgp_exec.executive import read_recording
 
@@ -159,6 +160,9 @@ def test_demo_sorting_hsr_over_zenoh_reaches_the_goal(tmp_path):
     assert report.ok, report.text()
     assert [s.name for s in report.stages] == ["scene", "world", "perceive", "robot", "camera", "executive", "replay"]
     assert "goal holds in the sensed world" in report.text()
+    executive = next(s for s in report.stages if s.name == "executive").detail
+    assert "objects sensed by the head camera" in executive
+    assert executive.count("mm from the truth") == 2, executive  # block_blue and block_green
     assert all(f.is_file() and f.stat().st_size > 1000 for f in report.files)
     rec = read_recording(tmp_path / "demo.mcap")
     assert rec.complete and rec.topic("/events")[-1][1]["status"] == "succeeded"

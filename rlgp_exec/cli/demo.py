@@ -22,6 +22,7 @@ from rlgp_exec.cli.flags import (
     gui_flag,
     zenoh_config_flag,
 )
+from rlgp_exec.demo import DEMO_OBJECTS
 from rlgp_exec.errors import RlgpError
 
 __all__ = ["add_demo_commands", "cmd_demo", "cmd_sim_robot"]
@@ -126,8 +127,8 @@ def add_demo_commands(sub: Any) -> None:
     s.add_argument("--scene", default=None,
                    help="an HSR scene with tagged objects: a file or a shipped name (default: table_clearing_hsr)")
     s.add_argument("--seed", type=int, default=0, help="how the true world differs from the file")
-    s.add_argument("--objects", choices=["camera", "mocap"], default="mocap",
-                   help="the executive's object source: the simulation's truth (mocap), or the head camera")
+    s.add_argument("--objects", choices=["camera", "mocap"], default=DEMO_OBJECTS,
+                   help="the executive's object source: the head camera, or the simulation's truth (mocap)")
     gui_flag(s, "the demo's recorded run (once it ends)")
     foxglove_flag(s)
     s.set_defaults(func=cmd_demo)
