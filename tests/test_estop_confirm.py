@@ -109,7 +109,7 @@ def test_zenoh_a_dropped_estop_is_sent_again_until_the_robot_reports_it():
 
 def test_zenoh_a_robot_restarted_unstopped_is_estopped_again():
     ep = free_endpoint()
-    with zenoh_rig(endpoint=ep) as (hal, wire, sim):
+    with zenoh_rig(endpoint=ep) as (hal, wire, _sim):
         assert hal.estop().ok
         assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
         assert hal.estop_status().resends == 0, "an e-stop that arrived was sent again"
