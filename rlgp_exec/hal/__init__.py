@@ -6,6 +6,7 @@ from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import (
     CommandResult,
     CommandStatus,
+    EstopStatus,
     GripperAction,
     GripperCommand,
     HalError,
@@ -18,6 +19,7 @@ __all__ = [
     "BACKENDS",
     "CommandResult",
     "CommandStatus",
+    "EstopStatus",
     "GripperAction",
     "GripperCommand",
     "HalError",

@@ -18,6 +18,12 @@ again at once and one that reports operation enabled is a fault (in ``RobotState
 ``rearm()``; while it is not, a drive enabled or disabled against what ``activate()`` set is set back. An
 EMCY error reset (0x0000) clears a node's EMCY codes only once its statusword no longer reports a fault.
 
+The e-stop is confirmed by each drive's statusword (quick stop active, or Fault): a drive that has not
+reported it within the heartbeat timeout of the quick stop, or whose statusword has not been heard for that
+long, is sent the quick stop again every heartbeat timeout until it does (:meth:`CanBackend.estop_status`).
+Every quick stop sent while the e-stop is latched and ``rearm()``'s fault reset share a lock, so a release
+is never followed by a late quick stop that latches a drive again.
+
 CAN frames carry no sender identity: a node that impersonates the master can send every frame this HAL
 sends, so the HAL can only notice a rogue enable (by the frame or the next statusword) and re-latch the
 quick stop within about one SYNC period; a guaranteed stop against a hostile bus needs a hardwired safety
@@ -42,7 +48,15 @@ import numpy as np
 from rlgp_exec.hal import can_nodes as cn
 from rlgp_exec.hal.can_nodes import CanNode, load_can_map, pack, unpack
 from rlgp_exec.hal.interface import RobotInterface
-from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, Lifecycle, RobotState
+from rlgp_exec.hal.types import (
+    EstopStatus,
+    GripperAction,
+    GripperCommand,
+    HalError,
+    JointSetpoint,
+    Lifecycle,
+    RobotState,
+)
 from rlgp_exec.hal.validate import RejectCounter
 from rlgp_exec.robot import load_robot
 
@@ -106,6 +120,7 @@ class _Watch:
     probed: bool = False  # asked by SDO for its heartbeat objects during this silence
     fb_wall: float = -np.inf
     status: int = 0  # last statusword
+    sw_wall: float = -np.inf  # [s, monotonic] it arrived
     emcy: set[int] = field(default_factory=set)
     emcy_reset: bool = False  # an EMCY error reset came: codes clear at the next fault-free statusword
     health: NodeHealth = NodeHealth.OK
@@ -158,6 +173,10 @@ class CanBackend(RobotInterface):
         self.fault_reason = ""  # why the HAL went to ERROR
         self._latched = False  # our e-stop (or our fault): no drive may be enabled
         self._enable_wanted = False  # activate() enabled the drives and no e-stop since
+        # held from reading _latched to sending on it (quick stops, rearm's release): taken before _lock
+        self._estop_lock = threading.Lock()
+        self.estop_resends = 0  # quick stops sent again to drives that did not confirm the e-stop
+        self._estop_episode_resends = 0  # of the e-stop latched now (its confirmation is logged once)
         self._pending: dict[int, float] = {}  # node -> not before [monotonic s]: to re-initialise
         self._busy: set[int] = set()  # nodes the supervisor is re-initialising (their NMT changes are ours)
         self._wake = threading.Event()
@@ -312,7 +331,7 @@ class CanBackend(RobotInterface):
         nid, sw = can_id & 0x7F, int(v[0])
         with self._lock:
             w = self._w[nid]
-            w.status = sw
+            w.status, w.sw_wall = sw, time.monotonic()
             if self._nodes[nid].is_base:
                 self._odom[2] = v[1] * 1e-6
                 w.fb_wall = time.monotonic()
@@ -325,6 +344,10 @@ class CanBackend(RobotInterface):
 
     def _watch_statusword(self, nid: int, sw: int) -> None:
         """Hold the e-stop: a drive that leaves quick stop while it is latched is stopped again at once."""
+        with self._estop_lock:  # a rearm between judging this statusword and acting on it would be undone
+            self._judge_statusword(nid, sw)
+
+    def _judge_statusword(self, nid: int, sw: int) -> None:
         now = time.monotonic()
         with self._lock:
             w, latched = self._w[nid], self._latched
@@ -357,6 +380,7 @@ class CanBackend(RobotInterface):
             )
         if not recent:
             self._quick_stop(nid)
+            self._count_resend()
 
     def _on_tpdo3(self, can_id: int, data: Any, ts: float) -> None:
         v = self._node(can_id, data, "", "tpdo3_base") if self._nodes[can_id & 0x7F].is_base else None
@@ -417,8 +441,8 @@ class CanBackend(RobotInterface):
         self.foreign.reject(
             f"foreign_{kind.split()[0].lower()}", f"{kind} 0x{can_id:X} [{raw.hex()}] to {self._what(nid)}"
         )
-        if self._latched and not (fn == 0x300 and raw[:2] == cn.CW_QUICK_STOP.to_bytes(2, "little")):
-            self._quick_stop(nid)
+        if not (fn == 0x300 and raw[:2] == cn.CW_QUICK_STOP.to_bytes(2, "little")):
+            self._quick_stop_if_latched(nid)
         if fn == 0x600:
             self._request(nid, f"SDO request [{raw.hex()}] from another master", settle=_FOREIGN_SETTLE)
 
@@ -432,8 +456,7 @@ class CanBackend(RobotInterface):
         targets = [n for n in self._nodes if raw[1] in (0, n)]
         self.foreign.reject("foreign_nmt", f"NMT {cn.NMT_COMMANDS[raw[0]]} for node {raw[1]}")
         for nid in targets:
-            if self._latched:
-                self._quick_stop(nid)
+            self._quick_stop_if_latched(nid)
             self._request(nid, f"NMT {cn.NMT_COMMANDS[raw[0]]} from another master", settle=_FOREIGN_SETTLE)
 
     # ------------------------------------------------------------------ supervision
@@ -557,10 +580,11 @@ class CanBackend(RobotInterface):
         return failed
 
     def _restore_controlword(self, nid: int) -> None:
-        if self._latched:
-            self._quick_stop(nid)
-        elif self._enable_wanted and self._lifecycle is not Lifecycle.ESTOPPED:
-            self._controlword(nid, cn.CW_ENABLE, cn.MODE_POSITION)
+        with self._estop_lock:
+            if self._latched:
+                self._quick_stop(nid)
+            elif self._enable_wanted and self._lifecycle is not Lifecycle.ESTOPPED:
+                self._controlword(nid, cn.CW_ENABLE, cn.MODE_POSITION)
 
     def _ensure_heartbeat_objects(self, nid: int) -> str:
         """'' when the node holds our heartbeat objects (re-written when it did not), else why not."""
@@ -606,14 +630,53 @@ class CanBackend(RobotInterface):
         return self._wait_state(nids, lambda s: s == cn.HB_OPERATIONAL, since)
 
     def _check_acks(self) -> None:
-        """Quick stop again to drives that have not acknowledged it within the heartbeat timeout."""
-        if not self._latched:
-            return
-        now = time.monotonic()
-        with self._lock:
-            late = [n for n, w in self._w.items() if not w.qs_acked and now - w.qs_sent > self.heartbeat_timeout]
-        for n in late:
-            self._quick_stop(n)
+        """Quick stop again, every heartbeat timeout, to drives that have not acknowledged it within the
+        heartbeat timeout or whose statusword has not been heard for that long (restarted, or gone)."""
+        with self._estop_lock:
+            if not self._latched:
+                return
+            now, t = time.monotonic(), self.heartbeat_timeout
+            with self._lock:
+                late = [
+                    n
+                    for n, w in self._w.items()
+                    if now - w.qs_sent > t and (not w.qs_acked or now - w.sw_wall > t)
+                ]
+                confirmed = not late and self._all_stopped(now)
+            if late and not self._estop_episode_resends:
+                log.warning(
+                    "can: %s did not confirm the quick stop within %.2f s: sending it again every %.2f s until they do",
+                    [self._what(n) for n in late],
+                    t,
+                    t,
+                )
+            for n in late:
+                self._quick_stop(n)
+                self._count_resend()
+            if confirmed and self._estop_episode_resends:
+                log.warning(
+                    "can: every drive reports quick stop, after %d quick stop re-send(s)", self._estop_episode_resends
+                )
+                self._estop_episode_resends = 0
+
+    def _count_resend(self) -> None:
+        """A quick stop sent again to a drive that did not confirm it (call under ``_estop_lock``)."""
+        self.estop_resends += 1
+        self._estop_episode_resends += 1
+
+    def _all_stopped(self, now: float) -> bool:
+        """Every drive's fresh statusword reports quick stop or Fault (call under ``_lock``)."""
+        return all(cn.stopped(w.status) and now - w.sw_wall <= self.heartbeat_timeout for w in self._w.values())
+
+    def estop_status(self) -> EstopStatus:
+        with self._estop_lock, self._lock:
+            engaged = self._latched
+            return EstopStatus(engaged, engaged and self._all_stopped(time.monotonic()), self.estop_resends)
+
+    def _quick_stop_if_latched(self, nid: int) -> None:
+        with self._estop_lock:
+            if self._latched:
+                self._quick_stop(nid)
 
     def _audit(self) -> None:
         """Read back the heartbeat objects of healthy nodes: a change nobody saw on the bus is caught too."""
@@ -724,11 +787,16 @@ class CanBackend(RobotInterface):
         self._send(0x200 + node.id, pack("rpdo1_joint", round(target / node.unit), 0))
 
     def _send_estop(self, engaged: bool) -> None:
+        with self._estop_lock:  # no quick stop decided before a release goes out after it
+            self._send_estop_locked(engaged)
+
+    def _send_estop_locked(self, engaged: bool) -> None:
         if engaged:
             with self._lock:
                 self._latched, self._enable_wanted = True, False
                 for w in self._w.values():
                     w.qs_acked = False
+                self._estop_episode_resends = 0
             for nid in self._nodes:
                 self._quick_stop(nid)
             return

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from rlgp_exec.hal.types import (
     CommandResult,
     CommandStatus,
+    EstopStatus,
     GripperAction,
     GripperCommand,
     HalError,
@@ -195,6 +196,13 @@ class RobotInterface(abc.ABC):
         self._lifecycle = Lifecycle.INACTIVE
         log.info("%s: e-stop released", self.backend)
         return CommandResult(CommandStatus.OK)
+
+    def estop_status(self) -> EstopStatus:
+        """Whether our e-stop is commanded and the robot's state confirms it. A backend that re-sends an
+        unconfirmed e-stop counts its re-sends; this default (no re-sending) reads the latest state."""
+        engaged = self._lifecycle is Lifecycle.ESTOPPED
+        st = self._latest_state() if engaged else None
+        return EstopStatus(engaged, st is not None and st.estopped, 0)
 
     def _hold(self) -> None:
         st = self._latest_state()

@@ -19,6 +19,7 @@ from rlgp_exec.errors import RlgpError
 __all__ = [
     "CommandResult",
     "CommandStatus",
+    "EstopStatus",
     "GripperAction",
     "GripperCommand",
     "HalError",
@@ -68,6 +69,15 @@ class CommandResult:
 
     def __bool__(self) -> bool:
         return self.ok
+
+
+@dataclass(frozen=True)
+class EstopStatus:
+    """Our e-stop as the robot's reported state confirms it."""
+
+    engaged: bool  # commanded: estop() and no rearm() since
+    confirmed: bool  # engaged, and the robot's latest state reports it engaged
+    resends: int  # e-stop commands sent again because the robot's state did not confirm one (since configure)
 
 
 def frozen_array(values: ArrayLike, n: int | None = None, what: str = "array") -> FloatArray:

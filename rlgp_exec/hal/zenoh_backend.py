@@ -13,6 +13,13 @@ last commands were at rest (planning, idle, faulted, a single position target) t
 keepalive on ``rlgp/heartbeat/executive`` every ``KEEPALIVE_S``. Not after a moving command (feed-forward
 joint velocity, a base twist above ``REST_BASE``): a control loop that hangs mid-motion, this thread
 still alive, must let the robot's deadline stop it, not mask it.
+
+The e-stop is confirmed, not assumed: from ``estop()`` until an explicit ``rearm()`` the same thread checks
+every ``KEEPALIVE_S`` that the robot's run-stop reports engaged. When no run-stop sample saying engaged has
+arrived within ``ESTOP_CONFIRM_S`` (of the e-stop, or of the last one that did) -- a lost sample, a robot
+server restarted un-stopped, a robot not heard at all -- it sends the e-stop again, every ``KEEPALIVE_S``,
+until one does (:meth:`ZenohBackend.estop_status`). The re-send and ``rearm()`` share a lock, so a
+release is never followed by a late re-send that latches the robot again.
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ import numpy as np
 
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.interface import RobotInterface
-from rlgp_exec.hal.types import GripperAction, GripperCommand, HalError, JointSetpoint, RobotState
+from rlgp_exec.hal.types import EstopStatus, GripperAction, GripperCommand, HalError, JointSetpoint, RobotState
 from rlgp_exec.hal.zenoh_keys import (
     DEFAULT_ENDPOINT,
     EXECUTIVE_LOST,
@@ -48,6 +55,9 @@ KEEPALIVE_S = 0.1  # [s] keepalive period at rest: 5 per robot-side deadline (0.
 ACTIVATE_WAIT_S = 0.5  # [s] at most, for the robot to clear its faults about this executive on activate
 REST_BASE = 0.05  # [m/s, rad/s] a twist below this is a hold (the executive's odometry correction at rest)
 REST_JOINT = 1e-6  # [rad/s, m/s] feed-forward velocity below which a setpoint is a hold
+# [s] the run-stop must report engaged within this of the e-stop (and keep reporting it), else the e-stop is
+# sent again: 30 run-stop samples at 100 Hz, above the heartbeat timeout (0.25 s) a state gap may last
+ESTOP_CONFIRM_S = 0.3
 
 
 class ZenohBackend(RobotInterface):
@@ -85,6 +95,14 @@ class ZenohBackend(RobotInterface):
         self._odom: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
         self._odom_wall = -np.inf
         self._runstop = False
+        self._runstop_engaged_wall = -np.inf  # [s, monotonic] the last run-stop sample reporting engaged arrived
+        # the e-stop's confirmation; the lock orders a re-send before a rearm's release, never after it
+        self._estop_lock = threading.Lock()
+        self._estop_engaged = False  # estop() sent it, no rearm() since
+        self._estop_since = -np.inf  # [s, monotonic] it was last commanded by estop()
+        self._estop_resending = False  # unconfirmed past the deadline (logged once per episode)
+        self._estop_episode_resends = 0
+        self.estop_resends = 0  # e-stops sent again, unconfirmed (since configure)
         self._faults: tuple[str, ...] = ()
         self.received = 0  # accepted state messages
 
@@ -131,6 +149,7 @@ class ZenohBackend(RobotInterface):
 
     def _keepalive_loop(self) -> None:
         while not self._keepalive_stop.wait(KEEPALIVE_S):
+            self._confirm_estop()
             if not any(self._moving.values()):  # else the command stream is the heartbeat; its silence must show
                 self._send_keepalive()
 
@@ -140,6 +159,54 @@ class ZenohBackend(RobotInterface):
             self.keepalives += 1
         except Exception as e:  # the session is closing
             log.debug("zenoh: keepalive: %s", e)
+
+    def _estop_confirmed(self, now: float) -> bool:
+        """The run-stop reports engaged, in a sample that came after the e-stop and within the deadline."""
+        with self._lock:
+            last = self._runstop_engaged_wall
+            return self._runstop and last >= self._estop_since and now - last <= ESTOP_CONFIRM_S
+
+    def _confirm_estop(self) -> None:
+        """While the e-stop is commanded: send it again when the robot's state does not confirm it."""
+        with self._estop_lock:
+            if not self._estop_engaged:
+                return
+            now = time.monotonic()
+            if self._estop_confirmed(now):
+                if self._estop_resending:
+                    log.warning(
+                        "zenoh: the robot reports its run-stop engaged, after %d e-stop re-send(s)",
+                        self._estop_episode_resends,
+                    )
+                self._estop_resending, self._estop_episode_resends = False, 0
+                return
+            with self._lock:
+                heard = max(self._estop_since, self._runstop_engaged_wall)
+                runstop, state_age = self._runstop, now - self._js_wall
+            if now - heard <= ESTOP_CONFIRM_S:
+                return  # the robot has until the deadline to report it
+            if not self._estop_resending:
+                log.warning(
+                    "zenoh: the robot has not reported its run-stop engaged for %.2f s (run-stop %s, joint "
+                    "state %.2f s old): sending the e-stop again every %.1f s until it does",
+                    now - heard,
+                    "engaged" if runstop else "released",
+                    state_age,
+                    KEEPALIVE_S,
+                )
+                self._estop_resending = True
+            try:
+                self._put("estop", rc.encode_bool(True))
+            except Exception as e:  # the session is closing; the next period tries again
+                log.debug("zenoh: e-stop re-send: %s", e)
+                return
+            self.estop_resends += 1
+            self._estop_episode_resends += 1
+
+    def estop_status(self) -> EstopStatus:
+        with self._estop_lock:
+            engaged = self._estop_engaged
+        return EstopStatus(engaged, engaged and self._estop_confirmed(time.monotonic()), self.estop_resends)
 
     def _on_activate(self) -> None:
         """Nothing moves yet: keepalives again (a fault may have stopped a stream without its hold), and the
@@ -234,6 +301,8 @@ class ZenohBackend(RobotInterface):
             return
         with self._lock:
             self._runstop = bool(m.data)
+            if self._runstop:
+                self._runstop_engaged_wall = time.monotonic()
 
     def _on_faults(self, sample: Any) -> None:
         m = rc.decode(sample.payload.to_bytes(), "std_msgs/msg/String")
@@ -302,5 +371,16 @@ class ZenohBackend(RobotInterface):
         self._put("gripper", rc.encode_trajectory(sp, 1.0))
 
     def _send_estop(self, engaged: bool) -> None:
-        self._put("estop", rc.encode_bool(engaged))
-        self._moving = dict.fromkeys(self._moving, False)  # e-stopped the robot holds; released nothing moves yet
+        """Engaged: commanded from now on, re-sent until the run-stop confirms it (a failed first send too).
+        Released: under the same lock as the re-sends, so none follows it."""
+        with self._estop_lock:
+            self._moving = dict.fromkeys(self._moving, False)  # e-stopped the robot holds; released nothing moves yet
+            if not engaged:
+                self._put("estop", rc.encode_bool(False))
+                self._estop_engaged, self._estop_resending, self._estop_episode_resends = False, False, 0
+                return
+            self._estop_engaged, self._estop_since = True, time.monotonic()
+            try:
+                self._put("estop", rc.encode_bool(True))
+            except Exception as e:  # latched all the same: the keepalive re-sends it until the robot confirms
+                log.error("zenoh: e-stop not sent (%s): re-sending until the robot reports it engaged", e)

@@ -212,7 +212,8 @@ def control_publisher(session: Any, key: str, must_arrive: bool = False) -> Any:
     Camera frames share the link at a lower priority: at the default priority a frame's fragments ahead of a
     joint state held it up past the state watchdog. A stream (states, setpoints, keepalives) drops a sample
     when the link is congested, as the next one replaces it; a one-off command (``must_arrive``: the e-stop,
-    the gripper) waits for room instead, as nothing sends it again."""
+    the gripper) waits for room instead, as nothing streams it (the e-stop is sent again only when the
+    robot's state does not confirm it)."""
     import zenoh
 
     congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
