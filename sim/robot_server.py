@@ -312,11 +312,13 @@ class ZenohRobotServer:
         if m is None:
             return
         with self.lock:
+            changed = bool(m.data) != self.sim.estopped
             self.sim.estop(bool(m.data))
             if m.data:
                 self._commanded = False  # e-stopped it holds by itself: no deadline until commanded again
         self._ok(topic)
-        log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
+        if changed:  # an executive re-sends its e-stop until it sees it engaged: one line per change
+            log.warning("robot_server: e-stop %s", "ENGAGED" if m.data else "released")
 
     def _push(self, payload: bytes, topic: str) -> None:
         """Sim only: move an object on its support by (dx, dy) [m] — someone bumped it. JSON payload
