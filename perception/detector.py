@@ -87,6 +87,7 @@ class TagDetector:
             self._cv = cv2.aruco.ArucoDetector(dictionary, params)
         else:
             try:
+                # local: optional (the dev extra): the second tag detector
                 from pupil_apriltags import Detector
             except ImportError:
                 raise PerceptionError(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -17,6 +17,7 @@ from rlgp_exec.perception.pipeline import Perception, scene_from_estimates
 from rlgp_exec.perception.pose import estimate_tag_pose, rotation_angle
 from rlgp_exec.perception.registry import TagRegistry
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.geometry import support_surfaces
 from rlgp_exec.scene.types import pose_matrix
 
 __all__ = [
@@ -36,8 +37,6 @@ def perturbed_poses(scene: Scene, magnitude_m: float, seed: int) -> dict[str, np
     away from the scene file (the file is then wrong, as it is on a real robot). An object with a
     ``random`` table stays inside its x/y ranges (in its support's frame): those ranges are where the
     scene says the object can be (e.g. tower_pr2's back row, kept within one arm's reach)."""
-    from rlgp_exec.scene.geometry import support_surfaces
-
     rng = np.random.default_rng(seed)
     surfaces = {s.name: s for s in support_surfaces(scene)}
     truth = {}
@@ -60,8 +59,6 @@ def perturbed_poses(scene: Scene, magnitude_m: float, seed: int) -> dict[str, np
 
 def perturbed_scene(scene: Scene, magnitude_m: float, seed: int) -> Scene:
     """The world as it really is when the file is off by :func:`perturbed_poses`."""
-    from dataclasses import replace
-
     truth = perturbed_poses(scene, magnitude_m, seed)
     objects = tuple(
         replace(o, pose=(float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), math.atan2(T[1, 0], T[0, 0])))
@@ -103,6 +100,7 @@ def perceive_scene(
 ) -> SimPerception:
     """Build ``scene`` in PyBullet, optionally move its objects away from the file's poses, look around
     with the robot's head camera and compare the perceived poses with the simulated truth."""
+    # local: perception.rendered_camera and world.pybullet_world bring PyBullet
     from rlgp_exec.perception.rendered_camera import ImageEffects, SimCapture
     from rlgp_exec.world.pybullet_world import build_world
 

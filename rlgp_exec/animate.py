@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.planning.drawer_replay import DrawerMotion
+from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.timing.samples import PlanSamples
 
 __all__ = [
@@ -58,6 +60,7 @@ def _frame_times(duration_s: float, fps: float, speed: float) -> Iterator[float]
 
 def _write(world, out: Path, duration_s: float, set_time: FrameFn, fps: float, speed: float | None,
            size: tuple[int, int], view: str) -> Path:
+    # local: imageio loads only for --animate; world.render brings OpenCV
     import imageio.v2 as imageio
 
     from rlgp_exec.world.render import camera, render_world
@@ -86,8 +89,6 @@ def _write(world, out: Path, duration_s: float, set_time: FrameFn, fps: float, s
 def plan_player(world, timed: PlanSamples) -> FrameFn:
     """A function putting ``world`` (built from the plan's scene) in the plan's state at t [s]; call it with
     non-decreasing times (the grasps and drawer motions happen in order)."""
-    from rlgp_exec.planning.drawer_replay import DrawerMotion
-
     model = world.robot_model
     state: dict = {"phase": -1, "grip": None, "drawer": (None, None)}
 
@@ -131,6 +132,7 @@ def plan_player(world, timed: PlanSamples) -> FrameFn:
 def animate_plan(scene, timed: PlanSamples, out: str | Path, fps: float = 10.0, speed: float | None = None,
                  size: tuple[int, int] = (400, 300), view: str = "overview") -> Path:
     """Render ``timed`` (a plan of ``scene``) at ``fps`` frames per second of video, ``speed`` times real time."""
+    # local: world.pybullet_world brings OpenCV
     from rlgp_exec.world.pybullet_world import build_world
 
     out = check_animation_path(out)
@@ -143,8 +145,6 @@ def animate_plan(scene, timed: PlanSamples, out: str | Path, fps: float = 10.0, 
 
 def _cabinet_at_hand(world, T_world_tool: np.ndarray) -> str | None:
     """The cabinet whose drawer knob is nearest the hand (the one a drawer phase drives)."""
-    from rlgp_exec.planning.drawers import drawer_views
-
     views = drawer_views(world.scene)
     if not views:
         return None
@@ -155,6 +155,7 @@ def _cabinet_at_hand(world, T_world_tool: np.ndarray) -> str | None:
 def recording_player(world, inp) -> tuple[float, FrameFn]:
     """(duration [s] on the robot's clock, a function putting ``world`` in the recording's state at t [s])
     for a checked recording ``inp`` (``replay.load_replay``)."""
+    # local: executive.world brings OpenCV and Foxglove
     from rlgp_exec.executive.world import drawer_openings
 
     states = inp.states
@@ -188,6 +189,7 @@ def recording_player(world, inp) -> tuple[float, FrameFn]:
 def animate_recording(path: str | Path, out: str | Path, fps: float = 10.0, speed: float | None = None,
                       size: tuple[int, int] = (400, 300), view: str = "overview") -> Path:
     """Render a recording's robot states and sensed object poses (``replay --animate``)."""
+    # local: executive.replay and world.pybullet_world bring OpenCV and Foxglove
     from rlgp_exec.executive.replay import load_replay
     from rlgp_exec.world.pybullet_world import build_world
 

@@ -28,6 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.scene import Scene, load_scene
+from rlgp_exec.scene.serialize import scene_to_toml
+from rlgp_exec.scene.shipped import resolve_scene, shipped_scene_dir
+from rlgp_exec.sim.robot_process import RobotProcess
 
 __all__ = ["DEMO_OBJECTS", "DEMO_SCENE", "DEMO_SCENES", "DemoReport", "Stage", "run_demo"]
 
@@ -43,8 +47,8 @@ def _against_truth(sensed: object, endpoint: str) -> str:
     """Each object of the executive's final (sensed) scene against the simulation's truth (its mocap
     stream, read for this only), in mm."""
 
+    # local: executive.runner brings matplotlib and SciPy
     from rlgp_exec.executive.runner import RunOptions, connect
-    from rlgp_exec.scene import Scene
 
     assert isinstance(sensed, Scene)
     hal, mocap = connect(sensed, RunOptions(backend="zenoh", endpoint=endpoint, objects="mocap"))
@@ -109,8 +113,6 @@ def _stage(report: DemoReport, name: str, fn: Callable[[], str]) -> bool:
 
 def scene_path(name: str) -> Path:
     """A shipped scene file by name (``sim/scenes/<name>.toml``)."""
-    from rlgp_exec.scene.shipped import shipped_scene_dir
-
     path = shipped_scene_dir() / f"{name}.toml"
     if not path.is_file():
         raise RlgpError(f"no shipped scene {name!r} ({path})")
@@ -118,9 +120,11 @@ def scene_path(name: str) -> Path:
 
 
 def _plot_base_path(recording: Path, out: Path) -> None:
+    # local: matplotlib (~0.7 s) loads only when a plot is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # local: after matplotlib.use("Agg"), which must come first; executive.recorder brings matplotlib and SciPy
     import matplotlib.pyplot as plt
 
     from rlgp_exec.executive.recorder import read_recording
@@ -157,11 +161,10 @@ def run_demo(
     source ("mocap" or "camera"); ``foxglove``: serve the execution live to Foxglove on that port."""
     if objects not in ("mocap", "camera"):
         raise RlgpError(f"demo objects {objects!r}: valid: ['mocap', 'camera']")
+    # local: OpenCV (~0.25 s) loads only when the demo runs
     import cv2
 
-    from rlgp_exec.scene import load_scene
-    from rlgp_exec.scene.serialize import scene_to_toml
-    from rlgp_exec.scene.shipped import resolve_scene
+    # local: world.pybullet_world and world.render bring OpenCV and Pinocchio
     from rlgp_exec.world.pybullet_world import build_world
     from rlgp_exec.world.render import render_world
 
@@ -170,6 +173,7 @@ def run_demo(
     state: dict[str, object] = {}
 
     def load() -> str:
+        # local: perception.runner brings SciPy and OpenCV
         from rlgp_exec.perception.runner import perturbed_scene
 
         scene = load_scene(resolve_scene(scene_name))
@@ -196,6 +200,7 @@ def run_demo(
         return "true world built (no collisions); overview and head-camera images rendered"
 
     def perceive() -> str:
+        # local: perception.runner brings SciPy and OpenCV
         from rlgp_exec.perception.runner import perceive_scene
 
         res = perceive_scene(state["scene"], perturb_m=PERTURB_M, seed=seed)  # type: ignore[arg-type]
@@ -206,8 +211,6 @@ def run_demo(
         return f"{res.views} views; objects {PERTURB_M * 100:.0f} cm off the file, found within {errs}"
 
     def robot() -> str:
-        from rlgp_exec.sim.robot_process import RobotProcess
-
         robot = RobotProcess(state["truth_path"], camera=True)  # type: ignore[arg-type]
         state["proc"], state["endpoint"] = robot, robot.endpoint
         return (
@@ -217,6 +220,7 @@ def run_demo(
 
     def camera() -> str:
 
+        # local: executive.camera_source and executive.runner bring matplotlib and SciPy
         from rlgp_exec.executive.camera_source import CameraObjects
         from rlgp_exec.executive.runner import RunOptions, connect
 
@@ -251,6 +255,7 @@ def run_demo(
             hal.shutdown()
 
     def execute() -> str:
+        # local: executive.runner brings matplotlib and SciPy
         from rlgp_exec.executive.runner import RunOptions, run_task
 
         rec = out / "demo.mcap"
@@ -278,6 +283,7 @@ def run_demo(
         )
 
     def plot() -> str:
+        # local: executive.replay brings matplotlib and SciPy
         from rlgp_exec.executive.replay import replay
 
         png = out / "demo_base_path.png"

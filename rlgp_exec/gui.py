@@ -56,6 +56,7 @@ def require_display() -> None:
 
 
 def _play(scene, make_player, hold: bool = True) -> None:
+    # local: PyBullet (its import banner) and world.pybullet_world (OpenCV) load only to play
     import pybullet as p
 
     from rlgp_exec.world.pybullet_world import build_world
@@ -89,6 +90,7 @@ def _play(scene, make_player, hold: bool = True) -> None:
 
 def _frame(world) -> None:
     """Point the window's camera as the overview picture is taken (``world.render``)."""
+    # local: PyBullet (its import banner) and world.render load only to play
     import pybullet as p
 
     from rlgp_exec.world.render import overview_framing
@@ -99,6 +101,7 @@ def _frame(world) -> None:
 
 def show_plan(scene, timed, hold: bool = True) -> None:
     """Play a timed plan of ``scene`` in PyBullet's window."""
+    # local: animate brings matplotlib and SciPy
     from rlgp_exec.animate import plan_player
 
     _play(scene, lambda world: (timed.duration_s, plan_player(world, timed)), hold)
@@ -106,6 +109,7 @@ def show_plan(scene, timed, hold: bool = True) -> None:
 
 def show_recording(path: str | Path, hold: bool = True) -> None:
     """Play a recording in PyBullet's window."""
+    # local: animate and executive.replay bring matplotlib and SciPy
     from rlgp_exec.animate import recording_player
     from rlgp_exec.executive.replay import load_replay
 

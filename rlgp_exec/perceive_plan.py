@@ -19,7 +19,8 @@ from pathlib import Path
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.plan import Plan
-from rlgp_exec.planning.validate import Validation
+from rlgp_exec.planning.validate import Validation, validate_plan
+from rlgp_exec.scene import load_scene
 
 __all__ = ["PerceivePlanReport", "perceive_and_plan"]
 
@@ -68,10 +69,11 @@ def perceive_and_plan(
 ) -> list[PerceivePlanReport]:
     """Perceive ``scene_file``'s world once (objects moved by up to ``perturb_m`` [m], seeded), plan on
     the perceived scene with each of ``planners`` and replay each plan in the true world."""
+    # local: perception.runner and planning.registry bring SciPy and OpenCV
     from rlgp_exec.perception.runner import perceive_scene, perturbed_scene
     from rlgp_exec.planning.registry import plan as run_planner
-    from rlgp_exec.planning.validate import validate_plan
-    from rlgp_exec.scene import load_scene
+
+    # local: world.pybullet_world brings OpenCV
     from rlgp_exec.world.pybullet_world import build_world
 
     scene = load_scene(scene_file)

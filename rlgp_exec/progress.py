@@ -47,6 +47,7 @@ class _Spinner:
         self.text, self.t0 = text, time.monotonic()
 
     def __rich__(self) -> str:
+        # local: rich loads only for a terminal's live display
         from rich.markup import escape
 
         return f"{escape(self.text)} [dim]({time.monotonic() - self.t0:.0f} s)[/dim]"
@@ -69,6 +70,7 @@ class Display:
         self._closed = threading.Event()
         self._pending: tuple[str, float] | None = None  # the current stage's start line and time, until said
         if self.fancy:
+            # local: rich loads only for a terminal's live display
             from rich.console import Console
 
             self._console = Console(file=self.stream, highlight=False)
@@ -98,6 +100,7 @@ class Display:
     def _emit(self, msg: str, at: float | None = None) -> None:
         """``msg`` stamped with ``at`` [s since the start] (default: now)."""
         if self._console is not None:
+            # local: rich loads only for a terminal's live display
             from rich.markup import escape
 
             self._console.print(f"[dim]{self.elapsed() if at is None else at:7.1f} s[/dim]  {escape(msg)}")

@@ -30,6 +30,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import zenoh
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.camera_source import StampedHistory
@@ -105,8 +106,6 @@ class CameraNode:
 
     # ------------------------------------------------------------------ set-up
     def start(self, connect_timeout_s: float = 30.0) -> None:
-        import zenoh
-
         end = time.monotonic() + connect_timeout_s
         while True:  # the robot server may still be starting
             try:

@@ -41,6 +41,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.world import DRAWER_SUFFIX, MOCAP_KEY
@@ -58,6 +59,7 @@ from rlgp_exec.hal.zenoh_keys import (
 )
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_LOST as LOST
 from rlgp_exec.hal.zenoh_keys import EXECUTIVE_SILENT as SILENT
+from rlgp_exec.scene import load_scene
 from rlgp_exec.sim.logs import configure_logging
 from rlgp_exec.sim.realtime import RealTimeLoop
 
@@ -341,8 +343,6 @@ class ZenohRobotServer:
         log.warning("robot_server: pushed %s by (%.3f, %.3f) m", name, dx, dy)
 
     def _on_executive(self, sample: Any) -> None:
-        import zenoh
-
         if not exact(sample, self.keys.alive_executive):
             self.rejects.reject("wildcard", f"liveliness on {sample.key_expr}, not {self.keys.alive_executive}")
             return
@@ -373,8 +373,6 @@ class ZenohRobotServer:
 def build_sim(robot: str, scene_path: str | None) -> SimRobot:
     scene = None
     if scene_path:
-        from rlgp_exec.scene import load_scene
-
         scene = load_scene(scene_path)
         if scene.robot.name != robot:
             raise RlgpError(f"--scene {scene_path} is for robot {scene.robot.name!r}, not --robot {robot!r}")
@@ -419,6 +417,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.transport == "zenoh":
             server = ZenohRobotServer(sim, endpoint, args.namespace, args.rate, args.zenoh_config)
         else:
+            # local: sim.robot_server_can brings python-can
             from rlgp_exec.sim.robot_server_can import CanRobotServer, open_bus
 
             server = CanRobotServer(sim, open_bus(args.can_interface, args.can_channel), rate_hz=args.rate)

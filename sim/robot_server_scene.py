@@ -7,6 +7,7 @@ the hand's tool frame for that pose.
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 from rlgp_exec.scene import Scene, scene_from_dict
@@ -62,6 +63,4 @@ def write_grasp_scene(path: str | Path) -> Path:
 
 
 def grasp_scene() -> Scene:
-    import tomllib
-
     return scene_from_dict(tomllib.loads(grasp_scene_toml()), "hal_grasp_hsr.toml")

@@ -23,6 +23,7 @@ import numpy as np
 
 from rlgp_exec.executive.act import Actor, ActStatus, Signals
 from rlgp_exec.executive.runner import RunOptions, connect, run_task
+from rlgp_exec.expected_log import expected_warnings
 from rlgp_exec.planning.validate import Phase
 from rlgp_exec.scene import load_scene
 from rlgp_exec.sim.robot_process import RobotProcess
@@ -114,8 +115,6 @@ FAULT_LOGGERS = (
 
 
 def run_executive_bench(task_scene: Path, fault_scene: Path, n_faults: int = 50, seed: int = 0) -> dict:
-    from rlgp_exec.expected_log import expected_warnings
-
     log.info("task: %s on a sim-robot process over Zenoh (sense, plan, time, act, verify)", task_scene.name)
     with RobotProcess(task_scene) as robot:
         opts = RunOptions(backend="zenoh", endpoint=robot.endpoint, seed=seed, objects="mocap")

@@ -22,9 +22,11 @@ import uuid
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.types import JointSetpoint
+from rlgp_exec.hal.zenoh_backend import ZenohBackend
 from rlgp_exec.hal.zenoh_keys import session_config
 
 __all__ = ["run_hal_bench"]
@@ -39,8 +41,6 @@ def _port() -> int:
 
 
 def _zenoh_rtt(pings: int) -> list[float]:
-    import zenoh
-
     ep = f"tcp/127.0.0.1:{_port()}"
     a = zenoh.open(session_config(listen=ep))
     b = zenoh.open(session_config(connect=ep))
@@ -66,8 +66,10 @@ def _zenoh_rtt(pings: int) -> list[float]:
 
 
 def _zenoh_loop(seconds: float) -> tuple[float, list[float]]:
+    # local: hal.sim_physics brings PyBullet
     from rlgp_exec.hal.sim_physics import SimRobot
-    from rlgp_exec.hal.zenoh_backend import ZenohBackend
+
+    # local: sim.robot_server brings matplotlib and SciPy
     from rlgp_exec.sim.robot_server import ZenohRobotServer
 
     ep = f"tcp/127.0.0.1:{_port()}"
@@ -101,6 +103,7 @@ def _zenoh_loop(seconds: float) -> tuple[float, list[float]]:
 
 
 def _can_rate(seconds: float) -> float:
+    # local: python-can (~0.3 s), canopen and PyBullet load only for the CAN bench
     import can
 
     from rlgp_exec.hal.can_backend import CanBackend

@@ -31,6 +31,7 @@ import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
+from rlgp_exec.planning.plot import plot_base_paths
 from rlgp_exec.planning.registry import plan, planner_names
 from rlgp_exec.reach import load_or_build
 from rlgp_exec.scene import Scene, load_scene, randomize
@@ -139,6 +140,7 @@ def _submit_all(
 
 def _on_cluster(jobs, address: str, scene_path: str, limits: PlanLimits) -> list[tuple[dict, list]]:
     try:
+        # local: optional (the `cluster` extra), needed only for --cluster
         from dask.distributed import Client
         from dask.distributed import as_completed as dask_completed
     except ModuleNotFoundError:
@@ -249,8 +251,6 @@ def run_planner_bench(
         "summary": summary,
     }
     if plot:
-        from rlgp_exec.planning.plot import plot_base_paths
-
         paths = {name: [np.asarray(xy) for r, xy in results if r["planner"] == name and xy] for name in planners}
         title = f"{base.name}: base paths ({seeds} seeds; objects of seed 0)"
         out["plot"] = str(plot_base_paths(base, paths, plot, title))

@@ -23,6 +23,7 @@ from rlgp_exec.reach.ik import ReachIK
 from rlgp_exec.reach.query import ReachabilityPlanner, interpolate
 from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import load_scene
+from rlgp_exec.world.pybullet_world import build_world
 
 __all__ = ["run_reachability_bench"]
 
@@ -30,8 +31,6 @@ __all__ = ["run_reachability_bench"]
 def run_reachability_bench(
     scene_path: str | Path, samples: int = 200, queries: int = 100, seed: int = 0, workers: int | None = None
 ) -> dict:
-
-    from rlgp_exec.world.pybullet_world import build_world
 
     scene = load_scene(scene_path)
     model = load_robot(scene.robot.name)

@@ -170,9 +170,11 @@ def run_scaling_bench(
 
 def plot_scaling(result: dict, path: str | Path) -> Path:
     """Two panels against N: median CPU time of every run (one line per planner and robot), success rate."""
+    # local: matplotlib (~0.7 s) loads only when a plot is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # local: after matplotlib.use("Agg"), which must come first
     import matplotlib.pyplot as plt
 
     path = Path(path)

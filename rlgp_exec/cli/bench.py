@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     EXIT_OK,
     plan_limits,
@@ -28,10 +29,9 @@ BENCHES = ("timing", "perception", "camera", "hal", "executive", "reachability",
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from rlgp_exec import progress
-
     scene_file = scene_arg(args.scene_file) if args.scene_file else None
     if args.task not in BENCHES and not _is_scene(args.task):
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.scene.shipped import shipped_scenes
 
         raise RlgpError(
@@ -58,34 +58,41 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace, scene_file: Path | None) -> dict[str, Any]:
     task = args.task
     if task == "timing":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.timing import run_timing_bench
 
         result = run_timing_bench(seed=args.seed or 0)
     elif task == "perception":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.perception import run_perception_bench
 
         result = run_perception_bench(seed=args.seed or 0)
     elif task == "reachability":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.reach import run_reachability_bench
 
         if scene_file is None:
             raise RlgpError("bench reachability needs a scene: rlgp-exec bench reachability SCENE [--samples N]")
         result = run_reachability_bench(scene_file, samples=args.samples, seed=args.seed or 0, workers=args.workers)
     elif task == "camera":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.camera import SCENE, run_camera_bench
 
         result = run_camera_bench(scene_file or SCENE, seed=args.seed or 0)
     elif task == "hal":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.hal import run_hal_bench
 
         result = run_hal_bench()
     elif task == "executive":
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.executive import run_executive_bench
         from rlgp_exec.demo import scene_path
 
         task_scene = scene_file or scene_path("sorting_hsr")
         result = run_executive_bench(task_scene, task_scene, n_faults=args.faults, seed=args.seed or 0)
     else:  # a scene (cmd_bench checked): its planners side by side
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.bench.planners import run_planner_bench
 
         planners = (args.planners or "rlgp,lgp").split(",")
@@ -97,6 +104,7 @@ def _bench(args: argparse.Namespace, scene_file: Path | None) -> dict[str, Any]:
 
 
 def _is_scene(arg: str) -> bool:
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.scene.shipped import resolve_scene
 
     try:
@@ -107,6 +115,7 @@ def _is_scene(arg: str) -> bool:
 
 
 def _bench_scaling(args: argparse.Namespace) -> int:
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.bench.scaling import parse_counts, run_scaling_bench
 
     def progress(rec: dict, done: int, total: int) -> None:

@@ -10,10 +10,14 @@ import json
 import logging
 import sys
 from collections.abc import Iterator
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rlgp_exec import progress
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.gui import require_display
+from rlgp_exec.planning.limits import PlanLimits
 
 if TYPE_CHECKING:
     from rlgp_exec.planning.limits import PlanLimits
@@ -39,8 +43,6 @@ def say(*parts: object) -> None:
 
 
 def package_version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version("rlgp-exec")
     except PackageNotFoundError:  # run from a source tree that was never installed
@@ -49,6 +51,7 @@ def package_version() -> str:
 
 def scene_arg(arg: str) -> Path:
     """A scene argument (file or shipped name) as a file; RlgpError (exit 2) listing the shipped names."""
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.scene.shipped import resolve_scene
 
     return resolve_scene(arg)
@@ -66,6 +69,7 @@ class _Planners:
 
     @staticmethod
     def _names() -> list[str]:
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.planning.registry import planner_names
 
         return planner_names()
@@ -76,8 +80,6 @@ PLANNER_CHOICES = _Planners()
 
 def plan_limits(args: argparse.Namespace) -> PlanLimits:
     """``--time-budget``/``--max-expansions`` as the planners' limits (bad values: RlgpError, exit 2)."""
-    from rlgp_exec.planning.limits import PlanLimits
-
     return PlanLimits(args.time_budget, args.max_expansions)
 
 
@@ -98,8 +100,6 @@ def write_json(path: str | None, data: dict[str, Any]) -> None:
 
 
 def progress_line(msg: str) -> None:
-    from rlgp_exec import progress
-
     d = progress.current()
     if d is not None:
         d.line(msg)
@@ -108,6 +108,7 @@ def progress_line(msg: str) -> None:
 def output_checks(args: argparse.Namespace) -> None:
     """Output options refused before any work (a 3-minute plan must not end in 'cannot write')."""
     if getattr(args, "animate", None):
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.animate import check_animation_path
 
         check_animation_path(args.animate)
@@ -117,8 +118,6 @@ def output_checks(args: argparse.Namespace) -> None:
     if rate is not None and not (0 < rate <= 1000):
         raise RlgpError(f"--rate {rate} Hz: must lie in (0, 1000]")
     if getattr(args, "gui", False):
-        from rlgp_exec.gui import require_display
-
         require_display()
     if getattr(args, "json", None) == "-" and getattr(args, "trajectory", None) == "-":
         raise RlgpError("--json - and --trajectory -: only one of them can have stdout")

@@ -6,11 +6,15 @@ import argparse
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_FAILED,
@@ -51,8 +55,7 @@ def _daemon_config_flags(s: argparse.ArgumentParser) -> None:
 
 def daemon_settings(args: argparse.Namespace) -> argparse.Namespace:
     """``args`` with --config's settings where an option was not given (bad ones: RlgpError, exit 2)."""
-    from dataclasses import replace
-
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.executive.daemon_config import DaemonConfig, load_daemon_config
 
     cfg = load_daemon_config(args.config) if args.config else DaemonConfig()
@@ -66,9 +69,7 @@ def daemon_settings(args: argparse.Namespace) -> argparse.Namespace:
 
 
 def cmd_daemon(args: argparse.Namespace) -> int:
-    import signal
-    import threading
-
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.executive.daemon import DEFAULT_LISTEN, Daemon, DaemonOptions
     from rlgp_exec.executive.runner import RunOptions
     from rlgp_exec.scene import load_scene
@@ -124,15 +125,12 @@ def exit_if_threads_linger(code: int, what: str) -> None:
     """End the process now if a worker thread outlived its stop (a join timed out): finalising the interpreter
     under a thread that holds native objects (Ruckig's, OMPL's) prints nanobind's leak dumps. Everything the
     command opened is closed by then; the streams are flushed first."""
-    import threading
-
     ignore = {threading.main_thread(), threading.current_thread()}
     lingering = [t.name for t in threading.enumerate()
                  if t.is_alive() and t not in ignore and not t.name.startswith("progress")]
     if not lingering:
         return
     log.info("%s: threads %s still running after the stop; exiting without waiting for them", what, lingering)
-    from rlgp_exec import progress
 
     progress.stop()
     logging.shutdown()
@@ -143,6 +141,7 @@ def exit_if_threads_linger(code: int, what: str) -> None:
 
 def cmd_request(args: argparse.Namespace) -> int:
 
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.executive.daemon import DEFAULT_LISTEN, request
 
     config = zenoh_config_path(args)

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
@@ -24,11 +27,13 @@ from rlgp_exec.cli.flags import (
 )
 from rlgp_exec.demo import DEMO_OBJECTS
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.gui import show_recording
 
 __all__ = ["add_demo_commands", "cmd_demo", "cmd_sim_robot"]
 
 
 def cmd_sim_robot(args: argparse.Namespace) -> int:
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.sim.robot_server import main as server_main
 
     argv = ["--robot", args.robot, "--transport", args.transport]
@@ -44,8 +49,8 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
             argv += [flag, value]
     if not args.camera:
         return server_main(argv)
-    import subprocess
 
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.hal.zenoh_keys import DEFAULT_ENDPOINT
     from rlgp_exec.sim.robot_process import camera_command
 
@@ -65,8 +70,6 @@ def cmd_sim_robot(args: argparse.Namespace) -> int:
 def _forward_stderr(proc: Any) -> None:
     """Copy a child's stderr to ours as it comes, without PyBullet's import banner (the child is a plain
     ``python -m``: its imports are not quietened)."""
-    import threading
-
     def pump() -> None:
         for line in proc.stderr:
             if not line.startswith("pybullet build time"):
@@ -77,6 +80,7 @@ def _forward_stderr(proc: Any) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.demo import DEMO_SCENE, run_demo
     from rlgp_exec.scene import load_scene
 
@@ -87,7 +91,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise RlgpError(f"demo: {path} is a {scene.robot.name} scene; the demo runs the HSR's Zenoh interface")
     if not any(o.tag is not None for o in scene.objects):
         raise RlgpError(f"demo: {path} has no tagged objects (an [[object]] tag = {{ id, size }}): nothing to perceive")
-    from rlgp_exec import progress
 
     with progress.stage(f"demo on {scene.name} ({path}), files to {args.out}"):
         print_live_view(args.foxglove)
@@ -95,8 +98,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
                           foxglove=args.foxglove)
     say(report.text())
     if args.gui and (Path(args.out) / "demo.mcap").is_file():
-        from rlgp_exec.gui import show_recording
-
         show_recording(Path(args.out) / "demo.mcap")
     return EXIT_OK if report.ok else EXIT_FAILED
 

@@ -25,6 +25,7 @@ from rlgp_exec.errors import RlgpError
 
 if TYPE_CHECKING:
     pass
+from rlgp_exec import progress
 from rlgp_exec.cli.bench import add_bench_command
 from rlgp_exec.cli.daemon import add_daemon_commands
 from rlgp_exec.cli.demo import add_demo_commands
@@ -72,6 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _quiet_imports() -> None:
     """Import the libraries that print banners on import, with the banner dropped (stderr stays clean)."""
+    # local: rlgp_exec.robot loads Pinocchio; importing the CLI stays light
     from rlgp_exec.robot.quiet import import_quietly
 
     import_quietly("pybullet")
@@ -86,7 +88,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    from rlgp_exec import progress
 
     _text[0] = sys.stderr if getattr(args, "json", None) == "-" or getattr(args, "trajectory", None) == "-" \
         else sys.stdout
@@ -116,6 +117,7 @@ def task_script(doc: str, scene: str, planners: str, perturb_m: float = 0.03, ro
     ap.add_argument("--perturb", type=float, default=perturb_m, help="[m] how far the objects are from the file")
     ap.add_argument("--json", metavar="FILE", help="write the runs as JSON to FILE ('-': stdout)")
     args = ap.parse_args()
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.demo import scene_path
 
     path = scene_path(scene.format(robot=getattr(args, "robot", "")))

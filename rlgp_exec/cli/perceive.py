@@ -4,8 +4,10 @@ reachability graph)."""
 from __future__ import annotations
 
 import argparse
+import copy
 from typing import Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     say,
     scene_arg,
@@ -23,6 +25,7 @@ __all__ = ["add_perceive_commands", "cmd_perceive", "cmd_rg"]
 
 def cmd_perceive(args: argparse.Namespace) -> int:
     if args.image:
+        # local: per command, so `rlgp-exec --help` stays fast
         import numpy as np
 
         from rlgp_exec.perception.camera import CameraIntrinsics
@@ -44,7 +47,7 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         raise RlgpError("give a SCENE file, or --image FILE --intrinsics W,H,fx,fy,cx,cy")
     if args.plan:
         return _perceive_and_plan(args)
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.perception.runner import perceive_scene
     from rlgp_exec.scene import load_scene
 
@@ -73,7 +76,7 @@ def cmd_perceive(args: argparse.Namespace) -> int:
 
 
 def _perceive_and_plan(args: argparse.Namespace) -> int:
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.perceive_plan import perceive_and_plan
 
     with progress.stage(f"perceiving, then planning with {args.plan}"):
@@ -106,11 +109,10 @@ def _perceive_and_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_rg(args: argparse.Namespace) -> int:
-    import copy
-
+    # local: per command, so `rlgp-exec --help` stays fast
     import numpy as np
 
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.reach import (
         GraphSnapshot,
         ReachabilityPlanner,

@@ -6,6 +6,7 @@ import argparse
 import time
 from typing import TYPE_CHECKING, Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
@@ -26,6 +27,8 @@ from rlgp_exec.cli.flags import (
     planner_flag,
 )
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.gui import show_plan
+from rlgp_exec.progress import stage
 
 if TYPE_CHECKING:
     from rlgp_exec.planning.limits import PlanLimits
@@ -38,10 +41,12 @@ def _budget_s(planner: str, limits: PlanLimits) -> float | None:
     if limits.time_budget_s is not None:
         return limits.time_budget_s
     if planner in ("rlgp", "lgp"):
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.planning.rlgp import TIME_BUDGET_S
 
         return TIME_BUDGET_S
     try:
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.planning.gnpp import BENCH_TIMEOUT_S
     except ImportError:
         return None
@@ -55,7 +60,7 @@ def _timing_text(cpu_s: float, budget_s: float | None, wall_s: float) -> str:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.planning.budget import cpu_clock
     from rlgp_exec.scene import load_scene, randomize
 
@@ -64,6 +69,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     scene = load_scene(scene_arg(args.scene))  # before the planners load: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.planning.registry import plan as run_planner
 
     if args.planner not in PLANNER_CHOICES:  # a name argparse has not seen (a test's argv): the same error
@@ -87,6 +93,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         say(f"  reason: {plan.reason}")
     model = None
     if plan.success and (args.json or args.trajectory or args.animate or args.gui):
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.robot import load_robot
         from rlgp_exec.timing.samples import time_plan, trajectory_dict
 
@@ -102,6 +109,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         else:
             summary["trajectory"] = traj
         if args.animate:
+            # local: per command, so `rlgp-exec --help` stays fast
             from rlgp_exec.animate import animate_plan
 
             with progress.stage(f"rendering the motion to {args.animate}"):
@@ -109,6 +117,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             summary["animation"] = str(out)
             say(f"  animation: {out}")
     if args.plot:
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.planning.plot import plot_plan
         from rlgp_exec.robot import load_robot
 
@@ -117,19 +126,18 @@ def cmd_plan(args: argparse.Namespace) -> int:
         say(f"  plot (base and tool paths, actions numbered): {out}")
     write_json(args.json, summary)
     if args.gui and plan.success:
-        from rlgp_exec.gui import show_plan
-
         show_plan(scene, timed)
     return EXIT_OK if plan.success else EXIT_FAILED
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.scene import load_scene, randomize
 
     scene = load_scene(scene_arg(args.scene))  # before the renderer loads: a bad file is refused at once
     if args.seed:  # seed 0 is the file as written, as in `bench`
         scene = randomize(scene, args.seed)
-    from rlgp_exec.progress import stage
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.world.render import render_scene_png
 
     with stage(f"rendering {scene.name} ({args.view} view)"):

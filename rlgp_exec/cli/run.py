@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import tempfile
 from pathlib import Path
 from typing import Any
 
+from rlgp_exec import progress
 from rlgp_exec.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_FAILED,
@@ -32,14 +35,13 @@ from rlgp_exec.cli.flags import (
     zenoh_config_flag,
 )
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.gui import show_recording
 
 __all__ = ["add_run_commands", "cmd_replay", "cmd_run"]
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    import dataclasses
-
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.executive.runner import RunOptions, run_task
     from rlgp_exec.scene import load_scene
 
@@ -49,6 +51,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.perceive:
         if args.backend != "sim":
             raise RlgpError("--perceive renders the head camera in simulation: use it with --backend sim")
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.perception.runner import perceive_scene
 
         with progress.stage(f"perceiving {scene.name}'s tagged objects (head camera, simulation)"):
@@ -73,7 +76,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     record = opts.record
     if args.gui and record is None:  # the window plays the run back from its recording
-        import tempfile
 
         record = Path(tempfile.mkdtemp(prefix="rlgp-exec-gui-")) / "run.mcap"
         opts = dataclasses.replace(opts, record=record)
@@ -93,8 +95,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         say(f"  recorded {args.record}")
     write_json(args.json, result.as_dict())
     if args.gui and record is not None and record.is_file():
-        from rlgp_exec.gui import show_recording
-
         show_recording(record)
     if result.status.value == "invalid_goal":  # a malformed or unknown --goal is bad input, as in `request goal`
         return EXIT_BAD_INPUT
@@ -102,7 +102,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from rlgp_exec import progress
+    # local: per command, so `rlgp-exec --help` stays fast
     from rlgp_exec.executive.replay import replay
 
     output_checks(args)
@@ -110,13 +110,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
         report = replay(args.file, png=args.png)  # a bad recording: a RecordingError, exit 2 (main)
     say(report.text())
     if args.animate:
+        # local: per command, so `rlgp-exec --help` stays fast
         from rlgp_exec.animate import animate_recording
 
         with progress.stage(f"rendering the recorded motion to {args.animate}"):
             say(f"  animation: {animate_recording(args.file, args.animate, fps=args.fps, speed=args.speed)}")
     if args.gui:
-        from rlgp_exec.gui import show_recording
-
         show_recording(args.file)
     write_json(
         args.json,

@@ -50,6 +50,7 @@ from rlgp_exec.executive.executive import Executive, TaskResult, TaskStatus
 from rlgp_exec.executive.recorder import Recorder
 from rlgp_exec.executive.runner import RunOptions, connect, object_source_name, record_camera
 from rlgp_exec.executive.states import ExecState, Transition
+from rlgp_exec.hal.zenoh_keys import exact, open_session, session_config
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.literals import parse_goal
 
@@ -128,8 +129,6 @@ class Daemon:
             raise
 
     def _start(self) -> None:
-        from rlgp_exec.hal.zenoh_keys import open_session, session_config
-
         # the client-facing configuration is checked before the robot is connected: a typo costs nothing
         config = session_config(listen=self.opts.listen, config_file=self.opts.zenoh_config)
         self._hal, self._objects = connect(self.scene, self.run_opts)
@@ -189,8 +188,6 @@ class Daemon:
 
     # ------------------------------------------------------------------ requests
     def _guard(self, key: str, fn):
-        from rlgp_exec.hal.zenoh_keys import exact
-
         def handler(query: Any) -> None:
             if not exact(query, key):  # a wildcard reached us: not a request for this key
                 self.ignored[key] += 1
@@ -454,8 +451,6 @@ def request(
     """A client call: one query to a daemon at ``endpoint`` (None: the ``zenoh_config``'s connect endpoints);
     the JSON reply (or an error dict). ``rearm`` and ``reset`` are sent confirmed: calling them is the
     operator's explicit request."""
-    from rlgp_exec.hal.zenoh_keys import open_session, session_config
-
     if what not in KEYS:
         raise RlgpError(f"unknown daemon request {what!r}; valid: {list(KEYS)}")
     if what in ("rearm", "reset") and payload is None:

@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from rlgp_exec.errors import RlgpError
+from rlgp_exec.executive.runner import OBJECT_SOURCES
+from rlgp_exec.planning.registry import planner_names
 
 __all__ = ["DaemonConfig", "load_daemon_config"]
 
@@ -95,14 +97,10 @@ def _count(where: str, key: str, v: Any, _: Path) -> int:
 
 
 def _planners() -> list[str]:
-    from rlgp_exec.planning.registry import planner_names
-
     return planner_names()
 
 
 def _sources() -> list[str]:
-    from rlgp_exec.executive.runner import OBJECT_SOURCES
-
     return list(OBJECT_SOURCES)
 
 

@@ -26,6 +26,7 @@ from rlgp_exec.executive.states import LATCHED, ExecState, IllegalTransitionErro
 from rlgp_exec.executive.world import ObjectSource, drawer_openings, update_scene
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import Lifecycle, RobotState
+from rlgp_exec.planning import registry
 from rlgp_exec.planning.drawers import drawer_views
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.planning.memory import PlannerMemory
@@ -475,10 +476,9 @@ class Executive:
             prog.stage = "planning"
             sm.to(S.PLANNING, f"attempt {attempt + 1}")
             scene = replace(self.scene, goal=goal)
-            from rlgp_exec.planning.registry import plan as run_planner
 
             for k in range(PLAN_TRIES):  # the planners sample: another seed may find what one did not
-                plan = run_planner(
+                plan = registry.plan(  # looked up per call: a test stands a planner in
                     scene, self.planner, seed=self.seed + 101 * attempt + k, memory=self.memory, limits=self.limits
                 )
                 prog.plans += 1

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rlgp_exec.perception.camera import CameraIntrinsics, FloatArray
+from rlgp_exec.reach.checker import WorldChecker
 from rlgp_exec.robot.head import look_at_q, pointing_error
 from rlgp_exec.robot.model import RobotModel
 from rlgp_exec.scene import Scene
@@ -42,8 +43,6 @@ class HeadViews:
     fixtures (objects and drawers as the scene file has them closed)."""
 
     def __init__(self, model: RobotModel, scene: Scene, camera: CameraIntrinsics) -> None:
-        from rlgp_exec.reach.checker import WorldChecker
-
         self.model, self.camera = model, camera
         self.head = list(model.group("head"))
         self.camera_frame = model.config.frames["camera"]

@@ -18,12 +18,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.recorder import Recording, RecordingError, read_recording
 from rlgp_exec.executive.world import drawer_openings
 from rlgp_exec.scene import Scene, scene_from_dict
+from rlgp_exec.world.pybullet_world import build_world
+from rlgp_exec.world.render import render_world
 
 __all__ = ["ReplayInput", "ReplayReport", "ReplayState", "load_replay", "replay"]
 
@@ -155,8 +158,6 @@ def load_replay(path: str | Path) -> ReplayInput:
 
 def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> ReplayReport:
     """Replay ``path`` (every ``step``-th robot state) into a DIRECT PyBullet world built from it."""
-    from rlgp_exec.world.pybullet_world import build_world
-
     inp = load_replay(path)
     scene, states, detections = inp.scene, inp.states, inp.detections
     world = build_world(scene, tags=False, collision_only=True)
@@ -199,10 +200,6 @@ def replay(path: str | Path, png: str | Path | None = None, step: int = 5) -> Re
                     continue  # the fingers round a drawer's knob (link 0 of a cabinet: its drawer)
                 collisions.add(f"robot {c.link} ~ {name}")
         if png is not None:
-            import cv2
-
-            from rlgp_exec.world.render import render_world
-
             rgb = render_world(world, 960, 720, "overview")
             if not cv2.imwrite(str(png), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
                 raise RlgpError(f"cannot write the replay's picture {png} (a .png in an existing directory?)")

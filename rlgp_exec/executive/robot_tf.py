@@ -14,6 +14,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 from numpy.typing import ArrayLike
 
 from rlgp_exec.executive.ros_messages import WORLD
@@ -80,16 +81,12 @@ class RobotTf:
 
     def _poses(self, q: FloatArray) -> FloatArray:
         """T_world_link (N, 4, 4) of every link of ``links`` at q (nq,)."""
-        import pinocchio as pin
-
         pin.framesForwardKinematics(self.model.pin_model, self._data, self.model.full_q(q))
         oMf = self._data.oMf
         return np.stack([oMf[i].homogeneous for i in self._frame_ids])
 
     def positions(self, qs: FloatArray, frame: str) -> FloatArray:
         """The origin (n, 3) in ``world`` of ``frame`` at each configuration of ``qs`` (n, nq)."""
-        import pinocchio as pin
-
         fid = self.model.frame_id(frame)
         out = np.empty((len(qs), 3))
         for k, q in enumerate(qs):

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
 
 from rlgp_exec.hal.ros_codec import _ser, _stamp, _store, _t
 from rlgp_exec.robot.model import FloatArray
@@ -58,8 +59,6 @@ def _header(t: float, frame: str) -> Any:
 
 def _quaternions(R: FloatArray) -> FloatArray:
     """Unit quaternions (N, 4) as x, y, z, w of rotation matrices (N, 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
     return np.asarray(Rotation.from_matrix(R).as_quat(), dtype=float).reshape(-1, 4)
 
 

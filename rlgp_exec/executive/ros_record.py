@@ -27,6 +27,7 @@ import numpy as np
 from rlgp_exec.executive import ros_messages as rm
 from rlgp_exec.executive import scene_entities as se
 from rlgp_exec.executive.robot_tf import RobotTf
+from rlgp_exec.executive.world import drawer_openings
 from rlgp_exec.robot.model import FloatArray, load_robot
 from rlgp_exec.scene import Scene, scene_from_dict
 
@@ -132,8 +133,6 @@ class RosView:
         ]
 
     def _detections(self, poses: Mapping[str, Any], t: float) -> list[tuple[str, bytes]]:
-        from rlgp_exec.executive.world import drawer_openings
-
         assert self.scene is not None
         names = {o.name for o in self.scene.objects}
         sensed = {n: _matrix(T) for n, T in poses.items()}

@@ -17,6 +17,7 @@ robot's camera in the loop, the recording and the live view also get its images,
 from __future__ import annotations
 
 import logging
+import re
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -25,11 +26,15 @@ from typing import Any
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.executive.camera_record import DEFAULT_RATE_HZ, CameraTap, LocalFrameTap
+from rlgp_exec.executive.camera_source import CameraObjects
 from rlgp_exec.executive.executive import Executive, TaskResult
+from rlgp_exec.executive.foxglove_live import FoxgloveLive, Tee
+from rlgp_exec.executive.local_camera import LocalCamera, check_source
 from rlgp_exec.executive.recorder import Recorder, RecordSink
 from rlgp_exec.executive.world import ObjectSource, ScenePoses, SimMocap, ZenohMocap
 from rlgp_exec.hal import make_backend
 from rlgp_exec.hal.interface import RobotInterface
+from rlgp_exec.perception.calibration import load_calibration
 from rlgp_exec.planning.limits import DEFAULT_LIMITS, PlanLimits
 from rlgp_exec.scene import Scene
 
@@ -73,8 +78,6 @@ def object_source_name(opts: RunOptions) -> str:
     if opts.camera is not None and name != "camera":
         raise RlgpError(f"--camera {opts.camera} is an object source: it needs --objects camera, not {name}")
     if opts.camera is not None and opts.calibration is not None:  # before connecting: refused at once
-        from rlgp_exec.executive.local_camera import check_source
-        from rlgp_exec.perception.calibration import load_calibration
 
         check_source(opts.camera)
         load_calibration(opts.calibration)
@@ -85,8 +88,6 @@ def object_source_name(opts: RunOptions) -> str:
 
 def goal_objects(scene: Scene, goal: list[str] | None = None) -> list[str]:
     """The objects of ``scene`` that ``goal`` (default: the scene's goal) names."""
-    import re
-
     text = " ".join(goal) if goal is not None else " ".join(str(g) for g in scene.goal.literals)
     words = set(re.findall(r"[^\s()]+", text))
     return [o.name for o in scene.objects if o.name in words]
@@ -121,13 +122,9 @@ def connect(scene: Scene, opts: RunOptions) -> tuple[RobotInterface, ObjectSourc
                 raise RlgpError(f"{opts.backend}: no robot heartbeat within {opts.connect_timeout_s} s")
             time.sleep(0.05)
         if source == "camera":
-            from rlgp_exec.executive.camera_source import CameraObjects
-
             local = opts.camera is not None
             cam = CameraObjects(hal.session, hal.keys, hal.model, scene, images=not local)  # type: ignore[attr-defined]
             if local:
-                from rlgp_exec.executive.local_camera import LocalCamera
-
                 assert opts.camera is not None and opts.calibration is not None
                 try:
                     cam.feeds.append(LocalCamera(opts.camera, opts.calibration, cam).start())
@@ -145,7 +142,6 @@ def _with_live_view(stack: ExitStack, recorder: Recorder | None, port: int | Non
     """The recorder, and the Foxglove live view on ``port`` if one is asked for (closed with ``stack``)."""
     if port is None:
         return recorder
-    from rlgp_exec.executive.foxglove_live import FoxgloveLive, Tee
 
     live = stack.enter_context(FoxgloveLive(port))
     log.info("live view: connect Foxglove to %s", live.url)
@@ -155,8 +151,6 @@ def _with_live_view(stack: ExitStack, recorder: Recorder | None, port: int | Non
 def record_camera(stack: ExitStack, sink: RecordSink, hal: Any, objects: ObjectSource, opts: RunOptions) -> None:
     """The camera's frames into the recording and live view: a local camera's as it reads them, else the
     robot's camera topics through a CameraTap (closed before the recorder: entered after it)."""
-    from rlgp_exec.executive.local_camera import LocalCamera  # (as connect: OpenCV's capture only when used)
-
     feeds = [f for f in getattr(objects, "feeds", []) if isinstance(f, LocalCamera)]
     if feeds:
         c = feeds[0].undistort.intrinsics

@@ -13,6 +13,7 @@ from typing import Any
 
 import foxglove.messages as fm
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from rlgp_exec.executive.robot_tf import RobotTf
 from rlgp_exec.executive.ros_messages import WORLD
@@ -34,8 +35,6 @@ def _time(t: float) -> fm.Timestamp:
 
 
 def _pose(T: FloatArray) -> fm.Pose:
-    from scipy.spatial.transform import Rotation
-
     x, y, z, w = Rotation.from_matrix(np.asarray(T, float)[:3, :3]).as_quat()
     return fm.Pose(
         position=fm.Vector3(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),

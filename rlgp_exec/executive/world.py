@@ -29,7 +29,7 @@ from rlgp_exec.hal.ros_codec import parse_stamped_transforms
 from rlgp_exec.hal.types import RobotState
 from rlgp_exec.hal.zenoh_keys import exact
 from rlgp_exec.robot.model import FloatArray, RobotModel
-from rlgp_exec.scene import Scene, StartState
+from rlgp_exec.scene import Scene, StartState, cabinet_geometry
 from rlgp_exec.scene.geometry import support_surfaces
 from rlgp_exec.scene.validate import find_support
 
@@ -152,8 +152,6 @@ class ZenohMocap(ObjectSource):
 def drawer_openings(scene: Scene, poses: dict[str, FloatArray]) -> dict[str, float]:
     """How far [m] each cabinet's drawer is out, from its sensed ``<cabinet>.drawer`` frame (cabinets
     without one are absent), within [0, travel]: a drawer at its stop is sensed a hair beyond it."""
-    from rlgp_exec.scene import cabinet_geometry
-
     out = {}
     for fx in scene.fixtures:
         T = poses.get(f"{fx.name}{DRAWER_SUFFIX}")

@@ -42,8 +42,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import can
 import canopen
 import numpy as np
+from canopen import SdoAbortedError, SdoCommunicationError
 
 from rlgp_exec.hal import can_nodes as cn
 from rlgp_exec.hal.can_nodes import CanNode, load_can_map, pack, unpack
@@ -185,8 +187,6 @@ class CanBackend(RobotInterface):
 
     # ------------------------------------------------------------------ lifecycle hooks
     def _on_configure(self) -> None:
-        import can
-
         bus = self._bus if self._bus is not None else can.Bus(**self._bus_args)
         net = _Network(bus)
         self.network = net
@@ -588,8 +588,6 @@ class CanBackend(RobotInterface):
 
     def _ensure_heartbeat_objects(self, nid: int) -> str:
         """'' when the node holds our heartbeat objects (re-written when it did not), else why not."""
-        from canopen import SdoAbortedError, SdoCommunicationError
-
         sdo, want = self.network[nid].sdo, self.heartbeat_objects
 
         def read() -> tuple[int, int]:

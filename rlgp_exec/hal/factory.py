@@ -6,6 +6,7 @@ from typing import Any
 
 from rlgp_exec.hal.interface import RobotInterface
 from rlgp_exec.hal.types import HalError
+from rlgp_exec.hal.zenoh_backend import ZenohBackend
 
 __all__ = ["BACKENDS", "make_backend"]
 
@@ -20,14 +21,14 @@ def make_backend(name: str, robot: str = "hsr", **options: Any) -> RobotInterfac
     """
     cls: type[RobotInterface]
     if name == "sim":
+        # local: a backend's library (PyBullet, python-can) loads only when that backend is made
         from rlgp_exec.hal.sim_backend import SimBackend
 
         cls = SimBackend
     elif name == "zenoh":
-        from rlgp_exec.hal.zenoh_backend import ZenohBackend
-
         cls = ZenohBackend
     elif name == "can":
+        # local: a backend's library (PyBullet, python-can) loads only when that backend is made
         from rlgp_exec.hal.can_backend import CanBackend
 
         cls = CanBackend

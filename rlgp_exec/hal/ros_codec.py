@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from rosbags.typesys import Stores, get_typestore
 
 from rlgp_exec.hal.types import FloatArray, HalError, JointSetpoint
 
@@ -53,8 +54,6 @@ class Rejected:
 
 @lru_cache(maxsize=1)
 def _store() -> Any:
-    from rosbags.typesys import Stores, get_typestore
-
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
@@ -226,6 +225,7 @@ def parse_twist(payload: bytes) -> tuple[float, float, float] | Rejected:
 
 def encode_transforms(stamp: float, T_parent_child: dict[str, FloatArray], parent: str = "map") -> bytes:
     """tf2_msgs/TFMessage: one transform (4, 4) per child frame, all from ``parent``."""
+    # local: SciPy's rotations (~0.7 s) load only for transforms
     from scipy.spatial.transform import Rotation
 
     tfs = []
@@ -252,6 +252,7 @@ def parse_transforms(payload: bytes) -> dict[str, FloatArray]:
 
 def parse_stamped_transforms(payload: bytes) -> tuple[float, dict[str, FloatArray]]:
     """``parse_transforms`` and the oldest header stamp [s] among the transforms (-inf for none)."""
+    # local: SciPy's rotations (~0.7 s) load only for transforms
     from scipy.spatial.transform import Rotation
 
     msg = decode(payload, "tf2_msgs/msg/TFMessage")

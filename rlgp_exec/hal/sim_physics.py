@@ -21,6 +21,7 @@ import math
 import time
 
 import numpy as np
+import pinocchio as pin
 import pybullet as p
 from numpy.typing import NDArray
 
@@ -28,7 +29,7 @@ from rlgp_exec.hal.types import GripperAction, GripperCommand, JointSetpoint, Ro
 from rlgp_exec.hal.validate import CommandLimits
 from rlgp_exec.robot import load_robot
 from rlgp_exec.robot.limits import wrap_angle
-from rlgp_exec.robot.pybullet_body import PyBulletRobot
+from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix
 from rlgp_exec.scene import Scene
 
 __all__ = ["SimRobot"]
@@ -45,8 +46,6 @@ _GRAVITY_MARGIN = 1.5  # the gravity load each motor may add, with this margin
 def gravity_load(model, samples: int = 64, seed: int = 0) -> NDArray[np.float64]:
     """(nq_full,) the largest |gravity torque or force| [Nm | N] on each joint of the full tree over
     ``samples`` random configurations within the limits (pinocchio, from the URDF's inertias)."""
-    import pinocchio as pin
-
     pm = model.pin_model
     data = pm.createData()
     rng = np.random.default_rng(seed)
@@ -73,6 +72,7 @@ class SimRobot:
         self.cabinets: dict[str, tuple[int, int]] = {}  # name -> (body, drawer joint = drawer link)
         self.world = None
         if scene is not None:
+            # local: world.pybullet_world brings OpenCV
             from rlgp_exec.world.pybullet_world import build_world
 
             self.world = build_world(scene, tags=False)
@@ -307,8 +307,6 @@ class SimRobot:
 
     def drawer_pose(self, cabinet: str) -> FloatArray:
         """T_world_drawer (4, 4) of a cabinet's drawer link."""
-        from rlgp_exec.robot.pybullet_body import pose_to_matrix
-
         body, link = self.cabinets[cabinet]
         pos, orn = p.getLinkState(body, link, physicsClientId=self.client)[4:6]
         return pose_to_matrix(pos, orn)
@@ -349,8 +347,6 @@ class SimRobot:
         p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
 
     def object_pose(self, name: str) -> FloatArray:
-        from rlgp_exec.robot.pybullet_body import pose_to_matrix
-
         pos, orn = p.getBasePositionAndOrientation(self.objects[name], physicsClientId=self.client)
         return pose_to_matrix(pos, orn)
 

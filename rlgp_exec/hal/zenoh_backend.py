@@ -30,6 +30,7 @@ import time
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from rlgp_exec.hal import ros_codec as rc
 from rlgp_exec.hal.interface import RobotInterface
@@ -256,8 +257,6 @@ class ZenohBackend(RobotInterface):
 
     # ------------------------------------------------------------------ incoming
     def _on_alive(self, sample: Any) -> None:
-        import zenoh
-
         if not exact(sample, self.keys.alive_robot):
             self.rejects.reject("wildcard", f"robot liveliness on {sample.key_expr}, not {self.keys.alive_robot}")
             return

@@ -20,6 +20,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+import zenoh
+
 from rlgp_exec.hal.types import HalError
 from rlgp_exec.robots import robot_dir
 
@@ -164,8 +166,6 @@ def session_config(
     endpoints: the session listens on exactly ``listen`` or connects to exactly ``connect``. Without
     either the file's endpoints stand (and a file is needed). A ``tls/`` endpoint needs the file's
     certificates: its absence is named here rather than left to a Zenoh error at open."""
-    import zenoh
-
     if listen is not None and connect is not None:
         raise HalError("zenoh session: give one of listen= or connect=, not both")
     if listen is None and connect is None and config_file is None:
@@ -214,8 +214,6 @@ def control_publisher(session: Any, key: str, must_arrive: bool = False) -> Any:
     when the link is congested, as the next one replaces it; a one-off command (``must_arrive``: the e-stop,
     the gripper) waits for room instead, as nothing streams it (the e-stop is sent again only when the
     robot's state does not confirm it)."""
-    import zenoh
-
     congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
     return session.declare_publisher(
         key, priority=zenoh.Priority.REAL_TIME, express=True, congestion_control=congestion
@@ -225,8 +223,6 @@ def control_publisher(session: Any, key: str, must_arrive: bool = False) -> Any:
 def open_session(config: Any, what: str) -> Any:
     """``zenoh.open(config)``; a failure (port in use, bad address, unreadable certificate) is a HalError
     naming ``what`` and Zenoh's reason in one line."""
-    import zenoh
-
     try:
         return zenoh.open(config)
     except Exception as e:  # zenoh.ZError

@@ -30,6 +30,7 @@ def _casadi_openblas() -> ctypes.CDLL | None:
     global _casadi, _tried
     if not _tried:
         _tried = True
+        # local: probed once, on the first solve: a process that never solves loads no CasADi
         import casadi
 
         path = Path(casadi.__file__).parent / CASADI_OPENBLAS

@@ -21,6 +21,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.planning.actions import ACTION_KINDS as _ALL_KINDS
 from rlgp_exec.planning.actions import DRAWER_ACTIONS, GEOMETRIC_ACTIONS, GNPP_ACTIONS, MOVES, Kind
+from rlgp_exec.robot import load_robot
 from rlgp_exec.scene import Scene
 
 __all__ = [
@@ -89,6 +90,7 @@ def capability(planner: str) -> Capability:
 def needed_actions(scene: Scene) -> dict[str, str]:
     """Action kind -> the first goal literal (or start) that needs it, for the goal's literals that do not
     hold at the start."""
+    # local: planning.symbolic.problem and planning.validate bring CasADi and PyBullet
     from rlgp_exec.planning.symbolic.problem import problem_from_scene
     from rlgp_exec.planning.validate import goal_holds
 
@@ -133,8 +135,6 @@ def arm_reach(robot: str) -> tuple[tuple[str, str, float], ...]:
     """(manipulator, first arm joint, reach [m]) per arm: the sum of the distances between its joints'
     origins and the tool frame, at the home pose. No configuration puts the tool point further from the
     first joint's origin (the triangle inequality), whatever the joints do."""
-    from rlgp_exec.robot import load_robot
-
     model = load_robot(robot)
     q = model.home()
     out = []
@@ -147,8 +147,8 @@ def arm_reach(robot: str) -> tuple[tuple[str, str, float], ...]:
 
 def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
     """Objects (and goal targets) no arm reaches from the start base, within ``arm_reach``'s bound."""
+    # local: planning.nlp.action brings SciPy and OpenCV
     from rlgp_exec.planning.nlp.action import target_surface
-    from rlgp_exec.robot import load_robot
 
     model = load_robot(scene.robot.name)
     q0 = model.home(scene.robot.base, scene.robot.joints)
@@ -195,6 +195,7 @@ def beyond_reach(scene: Scene) -> list[str]:
     target, that no arm reaches from there within ``arm_reach``'s bound (a sound bound: an empty list does
     not prove that the start base serves, a reason proves that it does not). A goal naming an object the
     scene lacks has no reach to bound (the planners name it as an invalid goal): none."""
+    # local: planning.feasibility brings SciPy and OpenCV
     from rlgp_exec.planning.feasibility import moved_objects
 
     names = {o.name for o in scene.objects}
@@ -205,6 +206,7 @@ def beyond_reach(scene: Scene) -> list[str]:
 
 def refuse(scene: Scene, planner: str) -> None:
     """Raise TaskRefusedError if ``planner`` cannot express the scene's goal or no hand can do it (see the module)."""
+    # local: planning.feasibility and planning.symbolic.errors bring SciPy, OpenCV and CasADi
     from rlgp_exec.planning.feasibility import physical_refusals
     from rlgp_exec.planning.symbolic.errors import SymbolicError
 

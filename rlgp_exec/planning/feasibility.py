@@ -15,11 +15,15 @@ import math
 
 import numpy as np
 
+from rlgp_exec.planning.gripper_limits import gripper_limits, min_graspable_height
+from rlgp_exec.planning.margins import RELEASE_CLEARANCE
 from rlgp_exec.planning.nlp.action import target_surface
 from rlgp_exec.planning.symbolic.model import GroundProblem
+from rlgp_exec.planning.validate import goal_holds
 from rlgp_exec.reach.ik import ReachIK, arm_spheres
 from rlgp_exec.robot.config import load_robot_config
 from rlgp_exec.scene import Scene
+from rlgp_exec.scene.rules import SIZE_MIN
 
 __all__ = ["goal_manipulator", "moved_objects", "physical_refusals", "unreachable_goal"]
 
@@ -75,8 +79,6 @@ def moved_objects(scene: Scene) -> list[str]:
     """Objects the goal needs the hand to hold (name order): the held one, each one an ``on``/``in`` literal
     names that is not already where the literal wants it, and whatever rests on one of those (or on an
     object the goal stacks onto)."""
-    from rlgp_exec.planning.validate import goal_holds
-
     poses = {o.name: o.T for o in scene.objects}
     openings = dict(scene.start.openings)
     out = {scene.start.held} if scene.start.held is not None else set()
@@ -102,10 +104,6 @@ def physical_refusals(scene: Scene) -> list[tuple[str, str]]:
     """Why the robot's first hand cannot hold an object the goal moves, one reason per object and rule
     (``planning.gripper_limits``: its open width and its fingertips' reach, probed once per robot; the
     scene rules' SIZE_MIN for scenes not read by the loader) as (object, reason); empty when none applies."""
-    from rlgp_exec.planning.gripper_limits import gripper_limits, min_graspable_height
-    from rlgp_exec.planning.margins import RELEASE_CLEARANCE
-    from rlgp_exec.scene.rules import SIZE_MIN
-
     limits = gripper_limits(scene.robot.name)
     robot = scene.robot.name
     low = min_graspable_height(limits)

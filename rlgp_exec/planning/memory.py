@@ -58,6 +58,7 @@ class PlannerMemory:
             log.info("planner memory: the GNPP database again (%d feasible, %d infeasible subgraphs)",
                      len(db.feasible), len(db.infeasible))
             return db
+        # local: the gnpp package (its planner) imports this module
         from rlgp_exec.planning.gnpp.database import SubgraphDB
 
         return self.subgraph_dbs.setdefault(key, SubgraphDB())

@@ -23,6 +23,7 @@ log = logging.getLogger(__name__)
 
 
 def _rect(ax, b: Box, **kw) -> None:
+    # local: matplotlib (~0.7 s) loads only when a plot is drawn
     from matplotlib.patches import Polygon
 
     hx, hy = b.size[0] / 2, b.size[1] / 2
@@ -43,6 +44,7 @@ def _draw_scene(ax, scene: Scene) -> None:
 
 
 def _save(fig, out: str | Path) -> Path:
+    # local: after matplotlib.use("Agg"), which must come first
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
@@ -57,9 +59,11 @@ def _save(fig, out: str | Path) -> Path:
 def plot_plan(scene: Scene, plan: Plan, model: RobotModel, out: str | Path, title: str = "") -> Path:
     """Write a top view of one plan: the base path (gold), each arm's tool path (blue), and a numbered
     marker where each action ends (its keyframe's tool position), the actions listed beside the plot."""
+    # local: matplotlib (~0.7 s) loads only when a plot is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # local: after matplotlib.use("Agg"), which must come first
     import matplotlib.pyplot as plt
 
     fig, (ax, key) = plt.subplots(1, 2, figsize=(10.5, 6.0), gridspec_kw={"width_ratios": [3, 1.4]})
@@ -101,9 +105,11 @@ def plot_plan(scene: Scene, plan: Plan, model: RobotModel, out: str | Path, titl
 
 def plot_base_paths(scene: Scene, paths: Mapping[str, Sequence[FloatArray]], out: str | Path, title: str = "") -> Path:
     """Write a PNG with one panel per planner; ``paths[planner]`` holds (n, 2) base paths [m]."""
+    # local: matplotlib (~0.7 s) loads only when a plot is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # local: after matplotlib.use("Agg"), which must come first
     import matplotlib.pyplot as plt
 
     names = list(paths) or ["(no runs)"]

@@ -24,6 +24,7 @@ PlannerFn = Callable[[Scene, int, PlannerMemory | None, PlanLimits], Plan]
 
 def _rlgp(name: str) -> PlannerFn:
     def run(scene: Scene, seed: int, memory: PlannerMemory | None = None, limits: PlanLimits = DEFAULT_LIMITS) -> Plan:
+        # local: R-LGP's planner loads on its first plan, as GNPP's below
         from rlgp_exec.planning.rlgp import TIME_BUDGET_S, plan_scene
 
         kw: dict[str, float | int] = {"time_budget_s": limits.time_budget_s or TIME_BUDGET_S}
@@ -52,6 +53,7 @@ def _load_plugins() -> None:
     """GNPP's variants, imported on first use (its package loads Fast Downward's wrapper and the NLPs)."""
     if _loaded:
         return
+    # local: GNPP's package (Fast Downward's wrapper, its NLPs) loads on first use
     from rlgp_exec.planning.gnpp import PLANNERS as GNPP_PLANNERS
 
     for name, fn in GNPP_PLANNERS.items():

@@ -19,6 +19,7 @@ from rlgp_exec.planning.margins import FEAS_TOL
 from rlgp_exec.reach import WorldChecker
 from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import base_circles
+from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
 from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import PANEL
@@ -255,8 +256,6 @@ class Transport:
         q2's base, and the arm takes q2's posture; each motion checked exactly. Postures tried: q2's
         own; folded (the home posture, empty hand only: the checks do not cover a held object against
         the robot's body); q1's with the lift up. None if all fail."""
-        from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
-
         rigid, postures = drive_postures(self.model, q1, q2, empty_hand=self.checker.attached is None)
         X = self.graph.X[self.graph.alive]
         lo_xy, hi_xy = X[:, :2].min(axis=0) - 1.0, X[:, :2].max(axis=0) + 1.0

@@ -88,6 +88,7 @@ class _Held(NamedTuple):
 
 
 def _region_rect(scene: Scene, name: str) -> tuple[FloatArray, tuple[float, float], float] | None:
+    # local: planning.nlp.action brings SciPy and OpenCV
     from rlgp_exec.planning.nlp.action import target_surface
 
     try:
@@ -151,6 +152,7 @@ def _replay(
     scene: Scene, phases: Sequence[Phase], fallbacks: Mapping[int, Phase], step: float, tolerance: float
 ) -> tuple[Validation, set[int]]:
     """The replay (module docstring): its validation, and the phases replayed on their fallbacks."""
+    # local: world.pybullet_world brings OpenCV
     from rlgp_exec.world.pybullet_world import build_world
 
     world = build_world(scene, tags=False, collision_only=True)

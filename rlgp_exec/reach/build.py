@@ -10,6 +10,7 @@ configurations PyBullet finds collision-free.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import multiprocessing as mp
@@ -79,7 +80,6 @@ def graph_meta(model: RobotModel, scene: Scene, manipulator: str, params: RGPara
     q0 = nominal_q(model, scene)
     ik_idx = [*model.group("base"), *model.group(model.manipulator(manipulator).group)]
     fixed = {n: round(float(q0[i]), 6) for i, n in enumerate(model.joint_names) if i not in ik_idx}
-    import hashlib
 
     # robot.toml and the URDF PyBullet checks against (a graph built before a collision-shape change
     # keeps nodes and edges the robot no longer has, or lacks the ones it gained)

@@ -34,6 +34,7 @@ from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.robot.pybullet_body import quat_xyzw
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import Box
+from rlgp_exec.world.pybullet_world import build_world
 
 __all__ = ["CLEARANCE", "Part", "WorldChecker"]
 
@@ -124,8 +125,6 @@ class WorldChecker:
     ) -> None:
         """``manipulator``: the arm whose tool holds an attached object and whose fingers may touch a knob
         (None: the robot's first)."""
-        from rlgp_exec.world.pybullet_world import build_world
-
         self.world = build_world(replace(scene, objects=()), tags=False, collision_only=True)
         self.robot, self.client = self.world.robot, self.world.client
         self.model = self.world.robot_model

@@ -39,6 +39,7 @@ def _seed_once(seed: int = 1) -> None:
     """OMPL's random generator, seeded once per process (it can only be seeded before first use), so
     that a planning run is repeatable when it is not cut short by its time limit."""
     if not _SEEDED:
+        # local: OMPL's bindings load only for a plan that falls back to OMPL
         from ompl import util as ou
 
         ou.setLogLevel(ou.LogLevel.LOG_ERROR)  # OMPL writes to stdout itself; our own log says what matters
@@ -59,6 +60,7 @@ def plan_ompl(
     """A collision-free path (n, nq) from q1 to q2, or None (timeout, or no certifiable path). ``plan_idx``:
     the joints planned (with any other that differs between the ends); ``lo_xy``/``hi_xy``: the base's
     x, y box [m] when it is planned (joints 0 and 1)."""
+    # local: OMPL's bindings load only for a plan that falls back to OMPL
     from ompl import base as ob
     from ompl import geometric as og
 

@@ -24,11 +24,13 @@ from dataclasses import dataclass
 
 import networkx as nx
 import numpy as np
+from scipy.spatial import cKDTree
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.reach.checker import WorldChecker
 from rlgp_exec.reach.graph import ReachabilityGraph
 from rlgp_exec.reach.ik import ReachIK
+from rlgp_exec.reach.ompl_plan import plan_ompl
 from rlgp_exec.robot.model import FloatArray
 
 __all__ = ["QueryStatus", "RGPath", "ReachabilityPlanner", "interpolate"]
@@ -355,8 +357,6 @@ class ReachabilityPlanner:
         edges hidden while carrying is a component of its own): samples round the midpoints of their
         closest node pairs (in joint space, then in task space), first drawn in joint space for every
         pair, then by IK (``_candidates``), become nodes with checked edges to both sides."""
-        from scipy.spatial import cKDTree
-
         self.counters["enhancements"] += 1
         view = self._open()
         A = np.fromiter(nx.node_connected_component(view, a), dtype=int)
@@ -475,7 +475,6 @@ class ReachabilityPlanner:
                     if n in self.g.G and self.g.G.degree(n) == 0:
                         self._enhance(n)
         if self.ompl_fallback:  # the graph cannot certify a path: plan this segment with OMPL
-            from rlgp_exec.reach.ompl_plan import plan_ompl
 
             X = self.g.X[self.g.alive]
             ompl_path = plan_ompl(

@@ -196,6 +196,7 @@ class RobotModel:
     # ------------------------------------------------------------------ CasADi
     def casadi_fk(self, frames: Sequence[str]):  # -> casadi.Function
         """A CasADi function q (nq,) -> [T_world_frame (4, 4), ...], built from this model."""
+        # local: robot.casadi_fk brings CasADi
         from rlgp_exec.robot.casadi_fk import build_casadi_fk
 
         return build_casadi_fk(self, tuple(frames))

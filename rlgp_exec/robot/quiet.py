@@ -4,6 +4,7 @@ stderr at import."""
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import sys
 from collections.abc import Iterator
@@ -48,7 +49,6 @@ def import_quietly(module: str) -> None:
     an import error is raised as usual, its message kept. Later imports find it in ``sys.modules``."""
     if module in sys.modules:
         return
-    import importlib
 
     with quiet_stdout(), quiet_stderr():
         importlib.import_module(module)

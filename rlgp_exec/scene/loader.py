@@ -40,6 +40,7 @@ from types import MappingProxyType
 from typing import Any
 
 from rlgp_exec.errors import SceneError
+from rlgp_exec.scene.geometry import PANEL
 from rlgp_exec.scene.literals import parse_goal
 from rlgp_exec.scene.rules import (
     ANGLE_MAX,
@@ -184,6 +185,7 @@ class _Reader:
 
 
 def _robot(r: _Reader, data: dict[str, Any], robot_name: str) -> RobotSpec:
+    # local: robot brings Pinocchio
     from rlgp_exec.robot import load_robot
 
     t = r.table(data.get("robot", {}), "[robot]", {"base", "joints"}, {"base"})
@@ -248,7 +250,6 @@ def _fixture(r: _Reader, t: Any, i: int) -> Fixture:
         )
         for key, value, hi in (("travel", drawer.travel, size[0]), ("height", drawer.height, size[2])):
             r.within(value, f"{where}.drawer.{key}", key, SIZE_MIN, hi, "SIZE_MIN .. the cabinet's extent")
-        from rlgp_exec.scene.geometry import PANEL
 
         depth = size[0] - 2.5 * PANEL
         if drawer.travel > depth - 2 * PANEL:

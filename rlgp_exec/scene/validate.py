@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from rlgp_exec.errors import SceneError
-from rlgp_exec.scene.geometry import Box, boxes_overlap, fixture_boxes, object_box, support_surfaces
+from rlgp_exec.scene.geometry import Box, boxes_overlap, cabinet_geometry, fixture_boxes, object_box, support_surfaces
 from rlgp_exec.scene.rules import HEIGHT_MAX, START_OVERLAP
 from rlgp_exec.scene.types import IN_HAND, Scene, SceneObject, pose_matrix
 
@@ -68,8 +68,6 @@ def find_support(scene: Scene, fail: Fail, openings: Mapping[str, float] | None 
 
 def _fixture_parts(scene: Scene) -> list[tuple[str, Box]]:
     """(fixture name, box) of every fixture's boxes, closed drawers included."""
-    from rlgp_exec.scene.geometry import cabinet_geometry
-
     parts: list[tuple[str, Box]] = []
     for f in scene.fixtures:
         parts += [(f.name, b) for b in fixture_boxes(f)]
@@ -126,6 +124,7 @@ def validate_geometry(scene: Scene, fail: Fail) -> None:
 def check_robot_start(scene: Scene, fail: Fail) -> None:
     """The robot's base footprint (robot.toml: a disc or a rectangle) clear of every fixture's footprint
     at the start, as the planners keep it on every motion (START_OVERLAP)."""
+    # local: robot.config brings Pinocchio
     from rlgp_exec.robot.config import load_robot_config
 
     cfg = load_robot_config(scene.robot.name).base
@@ -165,6 +164,7 @@ def _start_contact(scene: Scene) -> tuple[str, str, str, float] | None:
     """(robot link, fixture, fixture part, depth [m]) of the deepest penetration of the robot at its start
     (the home pose with the file's joint overrides) into a fixture, in a PyBullet world of the fixtures'
     boxes; None when it is clear."""
+    # local: PyBullet (its import banner) and rlgp_exec.robot (Pinocchio) load only here
     import pybullet as p
 
     from rlgp_exec.robot import load_robot

@@ -31,6 +31,7 @@ import numpy as np
 import toppra as ta
 import toppra.algorithm as ta_algo
 import toppra.constraint as ta_con
+from scipy.interpolate import PchipInterpolator
 
 from rlgp_exec.robot.config import BASE_JOINTS
 from rlgp_exec.robot.limits import JointLimits
@@ -73,8 +74,6 @@ class PchipPath(ta.interpolator.AbstractGeometricPath):
     too (a natural cubic spline overshoots)."""
 
     def __init__(self, ss: FloatArray, waypoints: FloatArray) -> None:
-        from scipy.interpolate import PchipInterpolator
-
         self._ss, self._wp = ss, waypoints
         self._f = PchipInterpolator(ss, waypoints, axis=0)
         self._d = (self._f, self._f.derivative(1), self._f.derivative(2))

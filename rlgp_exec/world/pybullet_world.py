@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.robot import RobotModel, load_robot
-from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix
+from rlgp_exec.robot.pybullet_body import PyBulletRobot, pose_to_matrix, quat_xyzw
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import TAG_LIFT, Box, cabinet_geometry, fixture_boxes, object_box, region_box
 from rlgp_exec.world.tags import tag_files, tag_quad_size
@@ -36,8 +36,6 @@ DRAWER_MASS = 1.0  # [kg]
 def matrix_to_pose(T: FloatArray) -> tuple[list[float], list[float]]:
     """PyBullet (position, quaternion xyzw) of T (4, 4) (a rotation: no orthogonalisation; the replay
     calls this at every step for a held object)."""
-    from rlgp_exec.robot.pybullet_body import quat_xyzw
-
     return T[:3, 3].tolist(), quat_xyzw(T[:3, :3])
 
 

@@ -67,8 +67,8 @@ def camera(world: World, width: int = 960, height: int = 720, view: str = "overv
             span = float(np.max(hi[:2] - lo[:2]))
             view_m = p.computeViewMatrixFromYawPitchRoll(((lo + hi) / 2).tolist(), 1.3 * span + 1.0, 0, -89.9, 0, 2)
         else:
-            target, distance, yaw, pitch = overview_framing(world)
-            view_m = p.computeViewMatrixFromYawPitchRoll(target, distance, yaw, pitch, 0, 2)
+            centre, distance, yaw, pitch = overview_framing(world)
+            view_m = p.computeViewMatrixFromYawPitchRoll(centre, distance, yaw, pitch, 0, 2)
         proj = p.computeProjectionMatrixFOV(50.0, aspect, 0.05, 50.0)
     return Camera(tuple(view_m), tuple(proj))
 

@@ -16,8 +16,10 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.planning.drawers import DrawerView, drawer_views
+from rlgp_exec.planning.gnpp.drawer_guess import KnobIK
 from rlgp_exec.planning.gnpp.held_pose import rel_pose
 from rlgp_exec.planning.nlp.drawer_factors import drop_above, follow_prismatic, knob_grasp
+from rlgp_exec.planning.nlp.factors import Rows, inside_rectangle
 from rlgp_exec.planning.nlp.keyframes import DROP_HIGH, DROP_LOW
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene.geometry import PANEL, Box
@@ -52,8 +54,6 @@ class DrawerFactors:
     @cached_property
     def knob_ik(self):
         """The arm's IK onto a knob (``drawer_guess.KnobIK``), one cache per library (planning call)."""
-        from rlgp_exec.planning.gnpp.drawer_guess import KnobIK
-
         return KnobIK(self)
 
     def opening(self, cabinet: str, state: str) -> float:
@@ -95,8 +95,6 @@ class DrawerFactors:
     # ----------------------------------------------------------------- factors
     def _f_Knob(self, arm: str, cabinet: str, state: str):
         """The hand on the knob (``nlp.drawer_factors.knob_grasp``) of the drawer at its opening in ``state``."""
-        from rlgp_exec.planning.nlp.factors import Rows
-
         q, rows = ca.SX.sym("q", len(self.arm_index(arm))), Rows.empty()  # type: ignore[attr-defined]
         rs = self._symbols(arm, q)  # type: ignore[attr-defined]
         knob_grasp(rs, self.drawers[cabinet].T_world_knob(self.opening(cabinet, state)), rows)
@@ -105,8 +103,6 @@ class DrawerFactors:
     def _f_Drive(self, arm: str, cabinet: str, what: str):
         """The articulated drive (``follow_prismatic``): q_b is q_a with the base moved along the drawer's
         axis by its travel (out to open, in to close), the arm held still, as R-LGP's keyframes drive it."""
-        from rlgp_exec.planning.nlp.factors import Rows
-
         n = len(self.arm_index(arm))  # type: ignore[attr-defined]
         qa, qb, rows = ca.SX.sym("qa", n), ca.SX.sym("qb", n), Rows.empty()
         v = self.drawers[cabinet]
@@ -117,8 +113,6 @@ class DrawerFactors:
         """The held object (held pose r, in the hand at q) upright over the open drawer's reachable part, its
         bottom a little below or above the rim (``drop_above``, R-LGP's bounds); w, its pose in the drawer
         frame after the fall, is straight below the release, turned as it was."""
-        from rlgp_exec.planning.nlp.factors import Rows
-
         n = len(self.arm_index(arm))  # type: ignore[attr-defined]
         q, w, r, rows = ca.SX.sym("q", n), ca.SX.sym("w", 4), ca.SX.sym("r", 4), Rows.empty()
         o, v = self.objects[obj], self.drawers[cabinet]  # type: ignore[attr-defined]
@@ -136,8 +130,6 @@ class DrawerFactors:
 
     def _f_InDrawer(self, obj: str, cabinet: str):
         """w (drawer frame) on the drawer's floor, inside the part of the interior a drop can reach."""
-        from rlgp_exec.planning.nlp.factors import Rows, inside_rectangle
-
         w, rows = ca.SX.sym("w", 4), Rows.empty()
         o, v = self.objects[obj], self.drawers[cabinet]  # type: ignore[attr-defined]
         d = v.travel

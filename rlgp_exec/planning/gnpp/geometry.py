@@ -50,6 +50,7 @@ from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, link_b
 from rlgp_exec.reach import nominal_q
 from rlgp_exec.reach.ik import box_sdf
 from rlgp_exec.robot.model import FloatArray, RobotModel
+from rlgp_exec.robot.pybullet_body import PyBulletRobot
 from rlgp_exec.scene import Scene
 from rlgp_exec.scene.geometry import Box, fixture_boxes
 
@@ -240,8 +241,6 @@ class FactorLib(DrawerFactors):
         """(finger spheres, hand spheres (tool frame), body boxes (base_link frame)) read from the
         robot's collision shapes in PyBullet at the start configuration, hand open (not for the PR2)."""
         if self._probe is None:
-            from rlgp_exec.robot.pybullet_body import PyBulletRobot
-
             client = p.connect(p.DIRECT)
             try:
                 robot = PyBulletRobot(self.model, client, collision_only=True)

@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning.gnpp import drawer_guess, drawer_pntc
 from rlgp_exec.planning.gnpp.geometry import MAX_TILT, FactorLib
 from rlgp_exec.planning.gnpp.lm import TOL as LM_TOL
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
@@ -206,8 +207,6 @@ def initial_guess(
 ) -> dict[Var, FloatArray]:
     """A value for every variable of the plan's graph (and for arms' variables not in it); the drawer
     actions' from ``drawer_guess``."""
-    from rlgp_exec.planning.gnpp import drawer_guess, drawer_pntc
-
     arms = lib.arms
     world: dict[str, FloatArray] = {o: lib.start_pose(o) for o in lib.objects}
     q: dict[str, FloatArray] = {m: lib.home_q(m) for m in arms}

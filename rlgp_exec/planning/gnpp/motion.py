@@ -32,7 +32,10 @@ from rlgp_exec.planning.gnpp.guess import TopIK, rel_T
 from rlgp_exec.planning.gnpp.pntc import MOVES, Var
 from rlgp_exec.planning.symbolic.model import GroundAction
 from rlgp_exec.planning.validate import Phase
+from rlgp_exec.reach import WorldChecker
+from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
 from rlgp_exec.robot.model import FloatArray
+from rlgp_exec.scene.geometry import object_box
 
 __all__ = ["LIFT", "Transit", "phases_of", "place", "world_checker"]
 
@@ -108,8 +111,6 @@ def world_checker(
     """A ``reach.WorldChecker`` for ``arm``'s motions: the objects at ``resting`` world poses (4,) as
     obstacles, ``held`` = (object, T_tool_obj (4, 4)) in its hand, the drawers at ``openings`` [m] (None:
     closed). The caller closes it."""
-    from rlgp_exec.reach import WorldChecker
-
     checker = WorldChecker(lib.scene, lib.model.manipulator(arm).group, manipulator=arm)
     if openings:
         checker.set_drawers(dict(openings))
@@ -119,8 +120,6 @@ def world_checker(
 
 def place(checker, lib: FactorLib, resting: Mapping[str, FloatArray], held: tuple[str, FloatArray] | None) -> None:
     """``checker``'s obstacles the objects at ``resting`` (replacing earlier ones), ``held`` in the hand (or none)."""
-    from rlgp_exec.scene.geometry import object_box
-
     checker.set_objects([replace(object_box(lib.objects[o]), T=lib.object_T(w)) for o, w in resting.items()])
     if held is not None:
         checker.attach(np.asarray(lib.objects[held[0]].size), held[1])
@@ -140,8 +139,6 @@ def _drive(
     """A checked path (n, nq) from the full configuration q1 to ``arm``'s base pose ``base`` (3,) [m, rad]
     (the arm in one of ``drive_postures``), the objects at ``resting`` world poses (4,) as obstacles,
     ``held`` = (object, T_tool_obj (4, 4)) carried; None if no posture gives one."""
-    from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
-
     model = lib.model
     checker = world_checker(lib, arm, resting, held, openings)
     try:

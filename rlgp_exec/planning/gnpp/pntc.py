@@ -51,6 +51,7 @@ import itertools
 from collections.abc import Mapping, Sequence
 
 from rlgp_exec.planning.actions import PICKS
+from rlgp_exec.planning.gnpp import drawer_pntc
 from rlgp_exec.planning.gnpp.factor import INITIAL, MOVES, Factor, Var
 from rlgp_exec.planning.gnpp.factor import partial_state as _ps
 from rlgp_exec.planning.symbolic.model import Atom, GroundAction, GroundProblem, Operator, SymbolicState
@@ -113,8 +114,6 @@ def _state_factors(
     t: int, s: SymbolicState, prev: SymbolicState | None, arms: list[str], movable: set[str],
     riders: Mapping[str, str],
 ) -> list[Factor]:
-    from rlgp_exec.planning.gnpp import drawer_pntc
-
     out: list[Factor] = []
     par = parents(s)
     if INITIAL in s:
@@ -157,8 +156,6 @@ def _state_factors(
 def _transition_factors(
     t: int, s: SymbolicState, s2: SymbolicState, arms: list[str], movable: set[str], mobile: Sequence[str]
 ) -> list[Factor]:
-    from rlgp_exec.planning.gnpp import drawer_pntc
-
     out: list[Factor] = []
     for m in mobile:  # (a drawer's drive moves the base with the drawer: ``Drive``)
         if moving(m) not in s and moving(m) not in s2 and not drawer_pntc.drives(m, s, s2):

@@ -23,6 +23,7 @@ import numpy as np
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.motion import Transit, place, world_checker
 from rlgp_exec.planning.validate import Phase
+from rlgp_exec.reach.ompl_plan import plan_ompl
 
 __all__ = ["OMPL_TIMEOUT_S", "repair_transits"]
 
@@ -37,8 +38,6 @@ def repair_transits(
     """The phases with every move (``transits``, rows of the straight ``phases``) of a phase named in the
     replay's ``collisions`` that fails the exact edge check replaced by an OMPL path; None if there is none
     to repair (no move of those phases collides) or OMPL finds no certified path for one."""
-    from rlgp_exec.reach.ompl_plan import plan_ompl
-
     bad = {int(m.group(1)) for c in collisions if (m := _PHASE.match(c))}
     out, repaired = list(phases), 0
     checkers: dict = {}  # arm -> its WorldChecker, built once (a PyBullet world each)

@@ -30,6 +30,7 @@ from rlgp_exec.planning.nlp.hand import arm_link_spheres, body_obstacles, finger
 from rlgp_exec.planning.nlp.path import Segment, optimize_paths
 from rlgp_exec.planning.plan import Level3Stats
 from rlgp_exec.planning.validate import Phase
+from rlgp_exec.robot.pybullet_body import PyBulletRobot
 from rlgp_exec.scene.geometry import object_box
 
 __all__ = ["T_TRAJ", "Trajectories"]
@@ -43,8 +44,6 @@ class Trajectories:
     PyBullet at the start configuration), ``stats`` summed over the plans it optimises."""
 
     def __init__(self, lib: FactorLib, T: int = T_TRAJ) -> None:
-        from rlgp_exec.robot.pybullet_body import PyBulletRobot
-
         self.lib, self.T = lib, T
         model, q = lib.model, lib.q_nominal
         client = p.connect(p.DIRECT)

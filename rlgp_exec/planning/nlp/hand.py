@@ -25,6 +25,7 @@ from typing import NamedTuple
 import casadi as ca
 import numpy as np
 import pybullet as p
+from scipy.spatial.transform import Rotation
 
 from rlgp_exec.planning.margins import SELF_MARGIN
 from rlgp_exec.planning.nlp.factors import RobotSymbols, Rows
@@ -250,8 +251,6 @@ def _urdf_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
 
 
 def _read_cylinders(model) -> dict[str, list[tuple[FloatArray, float, float]]]:
-
-    from scipy.spatial.transform import Rotation
 
     root = ET.fromstring(model.urdf.pinocchio_xml)
     out: dict[str, list[tuple[FloatArray, float, float]]] = {}

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from rlgp_exec.planning.actions import PICKS, Kind
 from rlgp_exec.planning.symbolic.model import GroundAction, GroundProblem, SymbolicState
 from rlgp_exec.planning.symbolic.search import CostFn, Heuristic
+from rlgp_exec.scene.geometry import region_box
 from rlgp_exec.scene.types import Scene
 
 __all__ = ["distance_cost", "goal_lower_bound", "site_positions"]
@@ -57,8 +58,6 @@ def goal_lower_bound(problem: GroundProblem) -> Heuristic:
 
 def site_positions(scene: Scene) -> dict[str, tuple[float, float]]:
     """Planar position (x, y) of every named thing an action goes to: objects, fixtures, regions."""
-    from rlgp_exec.scene.geometry import region_box
-
     out: dict[str, tuple[float, float]] = {f.name: (f.pose[0], f.pose[1]) for f in scene.fixtures}
     for r in scene.regions:
         T = region_box(scene, r).T

@@ -23,6 +23,8 @@ import numpy as np
 
 from rlgp_exec.planning.symbolic.errors import SymbolicError
 from rlgp_exec.planning.symbolic.model import Atom, atom_str
+from rlgp_exec.robot.config import load_robot_config
+from rlgp_exec.scene.geometry import region_box
 from rlgp_exec.scene.literals import parse_literal
 from rlgp_exec.scene.types import Literal, Scene, SceneObject
 
@@ -74,14 +76,11 @@ def _check_name(name: str, what: str) -> None:
 def _manipulators(scene: Scene, manipulators: Sequence[str] | None) -> list[str]:
     if manipulators is not None:
         return list(manipulators)
-    from rlgp_exec.robot.config import load_robot_config  # light: reads robots/<name>/robot.toml
 
     return [m.name for m in load_robot_config(scene.robot.name).manipulators]
 
 
 def _region_of(scene: Scene, obj: SceneObject, fixture: str) -> str | None:
-    from rlgp_exec.scene.geometry import region_box
-
     for r in scene.regions:
         if r.on != fixture:
             continue
