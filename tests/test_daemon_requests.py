@@ -442,7 +442,7 @@ def test_a_daemon_that_cannot_listen_closes_its_robot_session_and_exits_2(tmp_pa
         (line,) = _ours(r.stderr)
         assert line.startswith("rlgp-exec daemon: error: daemon: cannot listen on") and "in use" in line, line
         assert server._executive_seen, "the daemon never reached the robot: the test proves nothing"
-        assert _wait(lambda: LOST in sim.faults, 2.0), "the robot session was left open"
+        assert _wait(lambda: LOST in sim.faults, 5.0), "the robot session was left open"  # 2 s missed at load 8
     finally:
         sock.close()
         server.stop()
