@@ -229,7 +229,8 @@ class GraphSolver:
         self._cache: dict[tuple, _Built] = {}
         #: ``graph.structure`` of each subgraph ``refute`` found a feasible point for -> that point by position
         #: (``graph.canonical``): the same problem met again (another plan's pick of the same object from
-        #: its start) is refuted from it, not from random starts that may all miss it this time
+        #: its start) starts from it, in the search's solves (up to ``RESTART_ABOVE`` factors) and in
+        #: ``refute``, not from a guess or random starts that may all miss it this time
         self._refuted: dict[tuple, dict[int, FloatArray]] = {}
         #: ``graph.structure`` of each subgraph ``refute`` found no feasible point for -> its tries
         self._upheld: dict[tuple, int] = {}
@@ -351,11 +352,10 @@ class GraphSolver:
         problem, e.g. a conflict learnt again with its object held a step longer) is not solved again:
         None. (Hanoi: 6 of its 12 conflicts.)"""
         key, pos = canonical(factors)
-        known = self._refuted.get(key)
-        if known is not None:  # checked from that point (one solve, no iterations if it holds)
+        if key in self._refuted:  # checked from that point (``solve`` starts there: one solve)
             restarts, self.restarts, self.thorough = self.restarts, 0, True
             try:
-                res = self.solve(factors, {v: known.get(pos.get(v, -1), guess[v]) for v in variables(factors)})
+                res = self.solve(factors, guess)
             finally:
                 self.restarts, self.thorough = restarts, False
             if res.feasible:
@@ -425,6 +425,11 @@ class GraphSolver:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
         t0 = time.perf_counter()
         order = variables(factors)
+        if self._refuted and len(factors) <= RESTART_ABOVE:
+            key, pos = canonical(factors)
+            known = self._refuted.get(key)
+            if known is not None:  # a problem ``refute`` solved before: its point is the first start
+                guess = {**guess, **{v: known[pos[v]] for v in order if pos.get(v) in known}}
         built = self._built(factors, order)
         pre = built.pre
         free = [order[i] for i in pre.free]
