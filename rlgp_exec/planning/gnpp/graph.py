@@ -120,6 +120,13 @@ def structure(factors: Iterable[Factor]) -> tuple:
     standing, a few steps longer gives the same problem). Subgraphs of one scene with the same
     structure are the same NLP up to renaming (a factor's function and a variable's bounds depend on
     its key and label only: Pi is time-invariant), so they are both feasible or both infeasible."""
+    return canonical(factors)[0]
+
+
+def canonical(factors: Iterable[Factor]) -> tuple[tuple, dict[Var, int]]:
+    """(``structure(factors)``, each variable's position in it): a feasible point of one subgraph, its
+    values by position, is a feasible point of any other subgraph with the same structure (``Equal``-merged
+    variables share their position)."""
     fs = list(factors)
     rep: dict[Var, Var] = {}
 
@@ -136,10 +143,11 @@ def structure(factors: Iterable[Factor]) -> tuple:
     rest = [f for f in fs if f.kind != "Equal"]
     order = sorted({find(v) for f in rest for v in f.vars})
     pos = {v: i for i, v in enumerate(order)}
-    return (
+    key = (
         tuple(v.label for v in order),
         tuple(sorted((f.key, tuple(pos[find(v)] for v in f.vars)) for f in rest)),
     )
+    return key, {v: pos[find(v)] for f in fs for v in f.vars if find(v) in pos}
 
 
 def to_forbidden(factors: Iterable[Factor]) -> ForbiddenSequence:

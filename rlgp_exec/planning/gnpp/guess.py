@@ -357,10 +357,14 @@ def _hold_base(
 
 
 def ik_seed(
-    lib: FactorLib, ik: TopIK, factors: Sequence[Factor], guess: Mapping[Var, FloatArray]
+    lib: FactorLib, ik: TopIK, factors: Sequence[Factor], guess: Mapping[Var, FloatArray], bearing: int = 0
 ) -> dict[Var, FloatArray]:
     """``guess`` with each kinematic switch's arm at a top-grasp IK of its object's guessed world pose
-    (and the held pose that matches): a start for a subgraph whose guess later solves have moved."""
+    (and the held pose that matches): a start for a subgraph whose guess later solves have moved.
+    ``bearing`` k > 0 (a mobile arm): the IK starts with the base at the k-th of ``_ring_starts``' bearings
+    round the object (nearest the guess's base first), not at the guess's: from the guess's base the IK
+    stops at the first posture that reaches (often at the tilt bound, the fingers off the faces), where
+    the subgraph's solve fails again; the other bearings give other bases and postures."""
     out = dict(guess)
     cols = {f.vars[0]: f.key for f in factors if f.kind == "ColFix" and len(f.key) > 2}  # drawer-tagged ones
     for f in factors:
@@ -370,8 +374,14 @@ def ik_seed(
         o, arm = f.key[1], f.key[2]
         w = np.asarray(out[w_var], float)
         h = lib.objects[o].size[2]
-        ok, q = ik.solve(arm, w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)]), np.asarray(out[q_var], float),
-                         col_key=cols.get(q_var))
+        top = w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
+        q_ref = np.asarray(out[q_var], float)
+        if bearing > 0 and lib.mobile:
+            home = lib.home_q(arm)
+            home[:3] = q_ref[:3]
+            rings = _ring_starts(home, top, q_ref)
+            q_ref = rings[(bearing - 1) % len(rings)]
+        ok, q = ik.solve(arm, top, q_ref, col_key=cols.get(q_var))
         if ok:
             out[q_var] = q
             out[r_var] = _held_of(lib, arm, q, w)

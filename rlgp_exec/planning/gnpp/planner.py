@@ -200,7 +200,7 @@ def _plan(
         solver.lm_max_factors = LM_MAX_FACTORS
     traj = Trajectories(lib) if trajectories else None
     if lib.mobile:
-        solver.seeder = lambda factors, guess: ik_seed(lib, ik, factors, guess)
+        solver.seeder = lambda factors, guess, bearing=0: ik_seed(lib, ik, factors, guess, bearing)
     db = None
     if opts is not None and opts.database:
         arm_idx = {int(i) for m in lib.arms for i in lib.arm_index(m)}

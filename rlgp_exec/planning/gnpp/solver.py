@@ -24,7 +24,7 @@ from rlgp_exec.ipopt import LEAN
 from rlgp_exec.planning import budget
 from rlgp_exec.planning.gnpp.assembly import assemble
 from rlgp_exec.planning.gnpp.geometry import FactorLib
-from rlgp_exec.planning.gnpp.graph import structure, variables
+from rlgp_exec.planning.gnpp.graph import canonical, variables
 from rlgp_exec.planning.gnpp.lm import LevenbergMarquardt
 from rlgp_exec.planning.gnpp.pntc import Factor, Var
 from rlgp_exec.planning.gnpp.presolve import Presolved, presolve
@@ -99,6 +99,11 @@ RESTART_ABOVE = 60
 #: perturbed (``X_JITTER``): from a guess with a block inside its neighbour a signed distance leads
 #: nowhere, and the same false conflict is found and refuted again and again
 OBJECT_STARTS = 2
+#: ``refute`` of a subgraph with a pick from a known pose (a ``Kin`` whose world pose a ``Ref`` pins): every
+#: other try starts from the seeder's IK with the base on another bearing round the object
+#: (``guess.ik_seed``), the rest from random arm postures about the guess's base. Not for a place: its
+#: object's pose is a guess, and the IK's held pose (at the tilt bound) a worse start than a random one
+REFUTE_BEARINGS = True
 #: [m] how far apart ``_cleared`` sets the objects that only collision factors name: one more start for an
 #: object-only NLP, after ``OBJECT_STARTS``. In a relaxation without time such an object (an obstacle whose
 #: ``Ref`` and ``Equal`` chain were relaxed away) can stand anywhere; from where it started, in the block's
@@ -213,14 +218,20 @@ class GraphSolver:
 
     def __init__(self, lib: FactorLib, restarts: int = 1) -> None:
         self.lib, self.restarts = lib, restarts
-        #: optional: (factors, guess) -> a start for ``refute``'s first try (the planner sets one for a
-        #: mobile arm: top-grasp IK at each kinematic switch; the HSR's folded start posture converges
-        #: to a top grasp from few random starts)
-        self.seeder: Callable[[Sequence[Factor], Mapping[Var, FloatArray]], Mapping[Var, FloatArray]] | None = None
+        #: optional: (factors, guess, bearing) -> a start for ``refute``'s tries (the planner sets one for a
+        #: mobile arm: top-grasp IK at each kinematic switch, ``guess.ik_seed``; the HSR's folded start
+        #: posture converges to a top grasp from few random starts). ``bearing`` 0: the IK from the guess's
+        #: base; k > 0: from the k-th base on a ring round the object (``REFUTE_BEARINGS``)
+        self.seeder: Callable[[Sequence[Factor], Mapping[Var, FloatArray], int], Mapping[Var, FloatArray]] | None = None
         self.n_solves = 0
         self.solve_time_s = 0.0
         self.thorough = False  # IPOPT without ``SEARCH`` (``refute`` sets it)
         self._cache: dict[tuple, _Built] = {}
+        #: ``graph.structure`` of each subgraph ``refute`` found a feasible point for -> that point by position
+        #: (``graph.canonical``): the same problem met again (another plan's pick of the same object from
+        #: its start) starts from it, in the search's solves (up to ``RESTART_ABOVE`` factors) and in
+        #: ``refute``, not from a guess or random starts that may all miss it this time
+        self._refuted: dict[tuple, dict[int, FloatArray]] = {}
         #: ``graph.structure`` of each subgraph ``refute`` found no feasible point for -> its tries
         self._upheld: dict[tuple, int] = {}
         self.iters: list[int] = []  # iterations per solver run (IPOPT's, or LM's)
@@ -340,7 +351,16 @@ class GraphSolver:
         A subgraph with the same ``graph.structure`` as one checked before from as many starts (the same
         problem, e.g. a conflict learnt again with its object held a step longer) is not solved again:
         None. (Hanoi: 6 of its 12 conflicts.)"""
-        key = structure(factors)
+        key, pos = canonical(factors)
+        if key in self._refuted:  # checked from that point (``solve`` starts there: one solve)
+            restarts, self.restarts, self.thorough = self.restarts, 0, True
+            try:
+                res = self.solve(factors, guess)
+            finally:
+                self.restarts, self.thorough = restarts, False
+            if res.feasible:
+                log.debug("the same problem as a subgraph refuted before: refuted from its point")
+                return res.values
         if self._upheld.get(key, -1) >= (REFUTE_TRIES if tries is None else tries):
             log.debug("the same problem as a subgraph checked before, not refuted")
             return None
@@ -355,6 +375,8 @@ class GraphSolver:
             self.restarts, self.thorough = restarts, False
         if point is None:
             self._upheld[key] = max(tries, self._upheld.get(key, -1))
+        else:
+            self._refuted[key] = {pos[v]: np.asarray(x, float).copy() for v, x in point.items() if v in pos}
         return point
 
     def _refute(
@@ -365,10 +387,15 @@ class GraphSolver:
             res = self.solve(factors, {v: self._home_start(v, guess[v]) for v in order})
             if res.feasible:
                 return res.values
+        pinned = {f.vars[0] for f in factors if f.kind == "Ref"}
+        kin = any(f.kind == "Kin" and f.vars[1] in pinned for f in factors)  # a pick from a known pose
         for k in range(tries):
             start = {v: self._jittered(v, guess[v], rng) for v in order}
-            if k == 0 and self.seeder is not None:  # the first try from the seeder's start instead
-                start = dict(self.seeder(factors, {v: guess[v] for v in start}))
+            if self.seeder is not None and (k == 0 or (kin and k % 2 == 1 and REFUTE_BEARINGS)):
+                # the first try from the seeder's start (the guess's base), every other one from its IK
+                # with the base on the next bearing round the object: random arm postures about one base
+                # all fail where that base only reaches at the tilt bound
+                start = dict(self.seeder(factors, {v: guess[v] for v in start}, (k + 1) // 2))
             res = self.solve(factors, start)
             if res.feasible:
                 return res.values
@@ -398,6 +425,11 @@ class GraphSolver:
         """Solve the subgraph spanned by ``factors`` from ``guess`` (every variable needs one)."""
         t0 = time.perf_counter()
         order = variables(factors)
+        if self._refuted and len(factors) <= RESTART_ABOVE:
+            key, pos = canonical(factors)
+            known = self._refuted.get(key)
+            if known is not None:  # a problem ``refute`` solved before: its point is the first start
+                guess = {**guess, **{v: known[pos[v]] for v in order if pos.get(v) in known}}
         built = self._built(factors, order)
         pre = built.pre
         free = [order[i] for i in pre.free]
