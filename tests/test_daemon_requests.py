@@ -174,6 +174,9 @@ def test_fuzzed_requests_leave_the_daemon_serving_and_command_nothing(served, ca
         assert key in ("status", "cancel", "estop") or not r["ok"], (key, payload[:60], r)
     assert ex.sm.state is ExecState.ESTOPPED and daemon.queue.empty() and daemon.served == 0
     assert _ask(client, "status")["state"] == "estopped"  # still serving
+    # the status says the e-stop is commanded and that the robot's own state confirms it
+    assert _wait(lambda: _ask(client, "status")["estop"] == {"engaged": True, "confirmed": True,
+                                                             "resends": ex.hal.estop_status().resends}, 5.0, 0.05)
 
 
 # ---------------------------------------------------------------------------------- the robot server

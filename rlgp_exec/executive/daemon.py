@@ -35,6 +35,7 @@ robot's, with the zenoh backend, and the clients'), so its rules admit the robot
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import queue
@@ -310,6 +311,7 @@ class Daemon:
             "dropped": self.dropped,
             "progress": self.progress if self.current is not None else None,
             "last": self.last,
+            "estop": None if ex is None else dataclasses.asdict(ex.hal.estop_status()),
         }
 
     def _publish(self) -> None:
