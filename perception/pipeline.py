@@ -100,7 +100,9 @@ class Perception:
             log.warning("blank image at t=%.3f: nothing to detect", stamp)
         observations = []
         R_cw = T_wc[:3, :3].T
-        others = {n: e.T_world_object for n, e in self.tracker.estimates().items() if n not in lifted}
+        others = {} if self.supports is None else {
+            n: e.T_world_object for n, e in self.tracker.estimates().items() if n not in lifted
+        }
         for det in result.detections:
             mount = self.registry.get(det.tag_id)
             if mount is None:

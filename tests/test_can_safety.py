@@ -12,13 +12,14 @@ import random
 import time
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import can
 import numpy as np
 import pytest
+from waiting import wait_for
 
 from rlgp_exec.hal import CommandStatus, HalError, Lifecycle, RobotState, make_backend
 from rlgp_exec.hal import can_nodes as cn
@@ -37,15 +38,6 @@ FUZZ_SEED, FUZZ_CASES = 20261201, 90  # cases per phase (ACTIVE, e-stopped)
 # period at arm_flex_joint's 1.2 rad/s) when the HAL reacts at once; eight periods leave a loaded machine
 # room and still fail a joint that keeps going to the rogue's target 2 rad away
 BURST = 0.1
-
-
-def _wait(pred: Callable[[], bool], timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
 
 
 @dataclass
@@ -124,7 +116,7 @@ def rig(consumer_timeout_ms: int = 500, echo: bool = False, **hal_options: objec
 
 def _estop(r: Rig) -> np.ndarray:
     assert r.hal.estop().ok
-    assert _wait(lambda: set(r.drive_states().values()) == {"quick_stop"}), r.drive_states()
+    assert wait_for(lambda: set(r.drive_states().values()) == {"quick_stop"}), r.drive_states()
     time.sleep(0.05)
     return r.q()
 
@@ -154,7 +146,7 @@ def _moves(r: Rig, joint: str = "arm_flex_joint", by: float = -0.2) -> bool:
     res = hal.write_setpoint(q)
     assert res.ok, res
     k = hal.joint_names.index(joint)
-    return _wait(lambda: abs(r.q()[k] - q[i]) < 0.01, 5.0)
+    return wait_for(lambda: abs(r.q()[k] - q[i]) < 0.01, 5.0)
 
 
 # ---------------------------------------------------------------------------------------------- NMT
@@ -176,7 +168,7 @@ def test_another_master_cannot_leave_a_drive_unwatched_or_the_hal_stale(frame, c
     caplog.set_level(logging.WARNING, logger="rlgp_exec.hal.can_backend")
     with rig() as r:
         r.send(*frame)
-        assert _wait(lambda: any(s.reinits for s in r.hal.node_status()) and r.settled() and r.armed(), 5.0), (
+        assert wait_for(lambda: any(s.reinits for s in r.hal.node_status()) and r.settled() and r.armed(), 5.0), (
             r.hal.node_status(),
             r.hal.fault_reason,
         )
@@ -185,14 +177,14 @@ def test_another_master_cannot_leave_a_drive_unwatched_or_the_hal_stale(frame, c
         assert _moves(r)
         assert set(r.drive_states().values()) == {"enabled"}
         r.hal._periodic.stop()  # the master's heartbeat stops: the watchdog must trip
-        assert _wait(lambda: set(r.drive_states().values()) == {"fault"}, 2.0), r.drive_states()
+        assert wait_for(lambda: set(r.drive_states().values()) == {"fault"}, 2.0), r.drive_states()
 
 
 def test_a_drive_disabled_by_another_master_is_enabled_again():
     with rig(consumer_timeout_ms=2000) as r:
         r.send(0x300 + FLEX, cn.pack("rpdo2", cn.CW_DISABLE_VOLTAGE, 0, 0))
-        assert _wait(lambda: r.drive_states()[FLEX] == "switched_on", 1.0)
-        assert _wait(lambda: r.drive_states()[FLEX] == "enabled", 2.0)
+        assert wait_for(lambda: r.drive_states()[FLEX] == "switched_on", 1.0)
+        assert wait_for(lambda: r.drive_states()[FLEX] == "enabled", 2.0)
         assert r.hal.foreign.counts() == {"foreign_rpdo2": 1, "foreign_enable": 1}, r.hal.foreign.counts()
         assert _moves(r)
 
@@ -202,10 +194,10 @@ def test_a_node_that_cannot_be_reinitialised_faults_the_hal(monkeypatch):
         sdo = r.server._sdo
         monkeypatch.setattr(r.server, "_sdo", lambda d, data: None if d.node.id == FLEX else sdo(d, data))
         r.send(0x000, bytes([0x02, FLEX]))  # stopped: it must be re-configured, and its SDO server is dead
-        assert _wait(lambda: r.hal.lifecycle is Lifecycle.ERROR, 5.0)
+        assert wait_for(lambda: r.hal.lifecycle is Lifecycle.ERROR, 5.0)
         assert f"node {FLEX} (arm_flex_joint)" in r.hal.fault_reason, r.hal.fault_reason
         assert not r.hal.heartbeat_ok()
-        assert _wait(lambda: not r.followers()), r.followers()
+        assert wait_for(lambda: not r.followers()), r.followers()
         assert r.sim.estopped
 
 
@@ -237,8 +229,8 @@ def test_a_heartbeat_switched_off_out_of_sight_is_switched_on_again():
     with rig() as r:
         with r.server.lock:
             r.server.drives[FLEX].hb_ms = 0
-        assert _wait(lambda: not r.hal.heartbeat_ok(), 2.0)
-        assert _wait(lambda: r.armed() and r.settled(), 3.0), r.hal.node_status()
+        assert wait_for(lambda: not r.hal.heartbeat_ok(), 2.0)
+        assert wait_for(lambda: r.armed() and r.settled(), 3.0), r.hal.node_status()
         assert _moves(r)
 
 
@@ -253,7 +245,7 @@ def test_a_node_that_goes_silent_during_its_reinitialisation_is_taken_up_when_it
         time.sleep(0.8)
         assert r.hal.lifecycle is Lifecycle.ACTIVE and not r.hal.heartbeat_ok(), r.hal.fault_reason
         r.server.paused = False
-        assert _wait(lambda: r.settled() and r.armed() and r.hal.node_status()[1].reinits == 1, 5.0), (
+        assert wait_for(lambda: r.settled() and r.armed() and r.hal.node_status()[1].reinits == 1, 5.0), (
             r.hal.node_status(),
             r.hal.fault_reason,
         )
@@ -269,7 +261,7 @@ def test_a_watchdog_disabled_out_of_sight_is_found_by_the_audit(caplog):
         with r.server.lock:
             r.server.drives[FLEX].consumer = 0
         assert not r.armed()
-        assert _wait(r.armed, 3.0)
+        assert wait_for(r.armed, 3.0)
         assert f"node {FLEX} (arm_flex_joint): heartbeat objects 0x1017=20 ms, 0x1016:01=0x00000000" in caplog.text
         assert r.settled() and _moves(r)
 
@@ -282,12 +274,12 @@ def test_a_bus_that_echoes_our_frames_is_not_another_master():
         assert _moves(r)
         _estop(r)
         assert hal.rearm().ok
-        assert _wait(lambda: not _state(r).estopped)
+        assert wait_for(lambda: not _state(r).estopped)
         hal.activate()
         assert _moves(r, by=0.1)
         assert hal.foreign.total == 0 and not any(s.reinits for s in hal.node_status()), hal.foreign.counts()
         r.send(0x000, bytes([0x02, FLEX]))  # one frame that is not ours: one node re-initialised, and no more
-        assert _wait(lambda: hal.node_status()[1].reinits == 1 and r.settled() and r.armed(), 5.0)
+        assert wait_for(lambda: hal.node_status()[1].reinits == 1 and r.settled() and r.armed(), 5.0)
         time.sleep(0.3)
         assert [s.reinits for s in hal.node_status()] == [0, 1, 0, 0, 0, 0, 0, 0, 0]
         assert hal.foreign.total == 1, hal.foreign.counts()
@@ -316,7 +308,7 @@ def test_after_the_estop_only_rearm_enables_motion():
                 r.send(0x000, bytes([0x81, 0]))
                 r.send(0x000, bytes([0x01, 0]))
             r.rogue_enable(FLEX, -2_000_000)
-            assert _wait(
+            assert wait_for(
                 lambda b=burst: (b < 5 or _all_reinitialised(r)) and r.settled() and _all_quick_stopped(r), 5.0
             ), (
                 r.drive_states(),
@@ -332,8 +324,8 @@ def test_after_the_estop_only_rearm_enables_motion():
         assert r.hal.write_setpoint(st.positions(r.hal.setpoint_names)).status is CommandStatus.ESTOPPED
         assert r.hal.foreign.total > 0
         assert r.hal.rearm().ok
-        assert _wait(lambda: set(r.drive_states().values()) == {"switched_on"}), r.drive_states()
-        assert _wait(lambda: not _state(r).estopped)
+        assert wait_for(lambda: set(r.drive_states().values()) == {"switched_on"}), r.drive_states()
+        assert wait_for(lambda: not _state(r).estopped)
         assert not any("e-stop was latched" in f for f in _state(r).faults), _state(r).faults
         r.hal.activate()
         assert _moves(r)
@@ -344,14 +336,14 @@ def test_after_the_estop_only_rearm_enables_motion():
 def test_an_emcy_reset_does_not_clear_a_fault_the_drive_still_reports():
     with rig() as r:
         r.hal._periodic.stop()
-        assert _wait(lambda: r.drive_states()[FLEX] == "fault", 2.0)
+        assert wait_for(lambda: r.drive_states()[FLEX] == "fault", 2.0)
 
         def flex_faults() -> list[str]:
             st = r.hal.read_state()
             assert st is not None
             return [f for f in st.faults if f.startswith(f"node {FLEX} ")]
 
-        assert _wait(lambda: any("EMCY 0x8130" in f for f in flex_faults()))
+        assert wait_for(lambda: any("EMCY 0x8130" in f for f in flex_faults()))
         bc = r.hal.map.bus  # the master is back; the drive stays in Fault until a fault reset
         r.hal._periodic = r.hal.network.send_periodic(0x700 + bc.master_node_id, b"\x05", bc.master_heartbeat)
         r.send(0x080 + FLEX, bytes(8))  # EMCY 0x0000 from someone else
@@ -362,7 +354,7 @@ def test_an_emcy_reset_does_not_clear_a_fault_the_drive_still_reports():
         st = r.hal.read_state()
         assert st is not None and st.estopped
         assert r.hal.estop().ok and r.hal.rearm().ok  # fault reset: the drive clears and says so by EMCY
-        assert _wait(lambda: flex_faults() == [] and not _state(r).estopped, 2.0), flex_faults()
+        assert wait_for(lambda: flex_faults() == [] and not _state(r).estopped, 2.0), flex_faults()
         r.hal.activate()
         assert _moves(r)
 
@@ -443,7 +435,7 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                     for cob, data in case:
                         r.send(cob, data)
                     time.sleep(0.03)  # three SYNCs: anything latched by a drive would be applied
-                    assert _wait(r.settled, 5.0), (case, r.hal.node_status())
+                    assert wait_for(r.settled, 5.0), (case, r.hal.node_status())
                     if phase == "estopped":
                         moved = float(np.max(np.abs(r.q() - before)))
                         impersonation = kind == "impersonation"
@@ -454,13 +446,13 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                     if r.hal.lifecycle is Lifecycle.ERROR:
                         figures["hal_faults"] += 1
                         log.info("fuzz: the HAL faulted after %s: %s", case, r.hal.fault_reason)
-                        assert _wait(lambda: not r.followers()), r.followers()
+                        assert wait_for(lambda: not r.followers()), r.followers()
                         break
-                    assert _wait(r.armed, 2.0), (case, r.server.drives)
+                    assert wait_for(r.armed, 2.0), (case, r.server.drives)
                     if phase == "estopped":
-                        assert _wait(lambda: set(r.drive_states().values()) <= STOPPED), (case, r.drive_states())
+                        assert wait_for(lambda: set(r.drive_states().values()) <= STOPPED), (case, r.drive_states())
                     else:
-                        assert _wait(lambda: _tracks(r), 1.0), case
+                        assert wait_for(lambda: _tracks(r), 1.0), case
                     assert r.hal.rejects.counts().get("internal", 0) == 0, r.hal.rejects.last
                     assert r.server.rejects.counts().get("internal", 0) == 0, r.server.rejects.last
                 figures["reinits"] += sum(s.reinits for s in r.hal.node_status())
@@ -469,7 +461,7 @@ def test_can_fuzz_no_crash_no_motion_while_estopped_never_stale():
                     if r.hal.lifecycle is Lifecycle.ACTIVE:
                         _estop(r)
                     assert r.hal.rearm().ok
-                    assert _wait(lambda: not _state(r).estopped), _state(r).faults
+                    assert wait_for(lambda: not _state(r).estopped), _state(r).faults
                     r.hal.activate()
                     assert _moves(r, by=-0.2 if _state(r).position("arm_flex_joint") > -1.0 else 0.2)
     log.info(

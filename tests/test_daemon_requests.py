@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from waiting import wait_for
 
 from rlgp_exec.executive.daemon import MAX_ERROR, MAX_PAYLOAD, Daemon, DaemonOptions, request
 from rlgp_exec.executive.runner import RunOptions
@@ -39,15 +40,6 @@ WILDCARDS = ["**", "lab/**", "lab/rlgp/**", "lab/rlgp/executive/*", "lab/rlgp/ex
 MAX_REPLY = 2048  # [bytes] every reply the fuzz gets stays under this
 
 
-def _wait(pred, timeout: float, step: float = 0.005) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(step)
-    return bool(pred())
-
-
 # ---------------------------------------------------------------------------------- the daemon
 @pytest.fixture(scope="module")
 def served() -> Iterator[tuple[Daemon, object, str]]:
@@ -58,7 +50,7 @@ def served() -> Iterator[tuple[Daemon, object, str]]:
     daemon = Daemon(load_scene(SCENE), RunOptions(backend="sim"), DaemonOptions(ep, NS))
     daemon.start()
     client = zenoh.open(session_config(connect=ep))
-    assert _wait(lambda: _ask(client, "status") is not None, 5.0, 0.05)
+    assert wait_for(lambda: _ask(client, "status") is not None, 5.0, 0.05)
     yield daemon, client, ep
     client.close()
     daemon.stop()
@@ -175,7 +167,7 @@ def test_fuzzed_requests_leave_the_daemon_serving_and_command_nothing(served, ca
     assert ex.sm.state is ExecState.ESTOPPED and daemon.queue.empty() and daemon.served == 0
     assert _ask(client, "status")["state"] == "estopped"  # still serving
     # the status says the e-stop is commanded and that the robot's own state confirms it
-    assert _wait(lambda: _ask(client, "status")["estop"] == {"engaged": True, "confirmed": True,
+    assert wait_for(lambda: _ask(client, "status")["estop"] == {"engaged": True, "confirmed": True,
                                                              "resends": ex.hal.estop_status().resends}, 5.0, 0.05)
 
 
@@ -189,7 +181,7 @@ def robot() -> Iterator[tuple[ZenohRobotServer, object]]:
     server = ZenohRobotServer(sim, ep)
     server.start()
     client = zenoh.open(session_config(connect=ep))
-    assert _wait(lambda: server.stats()["ticks"] > 5, 5.0)
+    assert wait_for(lambda: server.stats()["ticks"] > 5, 5.0)
     time.sleep(0.3)  # the client's declarations reach the server
     yield server, client
     client.close()
@@ -208,7 +200,7 @@ def test_wildcard_puts_move_nothing_and_release_no_estop(robot):
         client.put(key, rc.encode_bool(False))
         client.put(key, rc.encode_twist(0.2, 0.0, 0.0))
         client.put(key, rc.encode_trajectory(JointSetpoint(arm.joints, [0.3] * len(arm.joints)), 0.01))
-    assert _wait(lambda: server.rejects.counts().get("wildcard", 0) >= 6 * 3, 2.0), server.rejects.counts()
+    assert wait_for(lambda: server.rejects.counts().get("wildcard", 0) >= 6 * 3, 2.0), server.rejects.counts()
     assert server.sim.estopped and not server.accepted
     with server.lock:
         server.sim.estop(False)
@@ -218,7 +210,7 @@ def test_wildcard_puts_move_nothing_and_release_no_estop(robot):
     st_ = server.sim.state()
     assert np.allclose(st_.base, base0, atol=1e-3) and np.allclose(st_.q, q0, atol=2e-3)
     client.liveliness().declare_token("rlgp/alive/**")  # a wildcard token: not the executive's
-    assert _wait(lambda: server.rejects.counts().get("wildcard", 0) > 6 * 3 + 2, 2.0), server.rejects.counts()
+    assert wait_for(lambda: server.rejects.counts().get("wildcard", 0) > 6 * 3 + 2, 2.0), server.rejects.counts()
 
 
 def test_the_zenoh_hal_takes_state_only_from_its_exact_keys(robot):
@@ -234,7 +226,7 @@ def test_the_zenoh_hal_takes_state_only_from_its_exact_keys(robot):
         for key in ("hsrb/*", "hsrb/**", "**"):  # from the robot's side: the one peer the HAL connects to
             server._session.put(key, spoof)
             server._session.put(key, rc.encode_bool(True))  # a run-stop on no key of the robot's
-        assert _wait(lambda: hal.rejects.counts().get("wildcard", 0) >= 6, 2.0), hal.rejects.counts()
+        assert wait_for(lambda: hal.rejects.counts().get("wildcard", 0) >= 6, 2.0), hal.rejects.counts()
         st_ = hal.read_state()
         assert not st_.estopped and st_.position("arm_lift_joint") != pytest.approx(0.33, abs=1e-3)
     finally:
@@ -259,11 +251,11 @@ def test_a_silent_executive_is_held_within_the_deadline(robot):
         client.put(arm.key, rc.encode_trajectory(JointSetpoint(arm.joints, target, dq), 0.01))
         time.sleep(0.01)
     last = time.monotonic()
-    assert _wait(lambda: abs(server.sim.state().base_velocity[0]) > 0.1, 1.0), "the base never moved"
-    assert _wait(lambda: SILENT in server.sim.faults, COMMAND_DEADLINE_S + 0.5, 0.001)
+    assert wait_for(lambda: abs(server.sim.state().base_velocity[0]) > 0.1, 1.0), "the base never moved"
+    assert wait_for(lambda: SILENT in server.sim.faults, COMMAND_DEADLINE_S + 0.5, 0.001)
     held_after = time.monotonic() - last
     assert held_after <= COMMAND_DEADLINE_S + 0.05, f"held {held_after:.3f} s after the last command"
-    assert _wait(lambda: abs(server.sim.state().base_velocity[0]) < 1e-3, 2 * server.period)
+    assert wait_for(lambda: abs(server.sim.state().base_velocity[0]) < 1e-3, 2 * server.period)
     lift = server.sim.state().position("arm_lift_joint")
     time.sleep(0.5)
     assert server.sim.state().position("arm_lift_joint") == pytest.approx(lift, abs=5e-3)  # held, not at 0.6
@@ -272,9 +264,9 @@ def test_a_silent_executive_is_held_within_the_deadline(robot):
     time.sleep(0.3)
     assert SILENT in server.sim.faults  # presence is not a command
     client.put(k.heartbeat, rc.encode_float64(1.0))
-    assert _wait(lambda: SILENT not in server.sim.faults, 1.0)
+    assert wait_for(lambda: SILENT not in server.sim.faults, 1.0)
     token.undeclare()
-    assert _wait(lambda: LOST in server.sim.faults, 2.0)  # the token gone: lost, held
+    assert wait_for(lambda: LOST in server.sim.faults, 2.0)  # the token gone: lost, held
     client.liveliness().declare_token(k.alive_executive)
     time.sleep(0.3)
     assert LOST in server.sim.faults  # a (possibly spoofed) token does not clear it
@@ -295,11 +287,11 @@ def test_an_estop_mid_motion_and_its_rearm_leave_no_silence_fault(robot):
             assert hal.write_base_velocity(0.15, 0.0, 0.0)
             time.sleep(0.01)
         hal.estop()
-        assert _wait(lambda: server.sim.estopped, 1.0)
+        assert wait_for(lambda: server.sim.estopped, 1.0)
         time.sleep(3 * COMMAND_DEADLINE_S)
         assert SILENT not in server.sim.faults
         hal.rearm()
-        assert _wait(lambda: not server.sim.estopped, 1.0)
+        assert wait_for(lambda: not server.sim.estopped, 1.0)
         time.sleep(3 * COMMAND_DEADLINE_S)
         assert SILENT not in server.sim.faults and server.stats()["holds"] == {}, server.stats()
     finally:
@@ -325,11 +317,11 @@ def test_after_a_stream_stopped_without_its_hold_activate_starts_clean(robot):
             assert hal.write_setpoint([lift + 0.001 * k], [0.1], names=["arm_lift_joint"])
             time.sleep(0.01)
         server.loop.stop()  # the robot's state stops: stale
-        assert _wait(lambda: not hal.heartbeat_ok(), 2.0)
+        assert wait_for(lambda: not hal.heartbeat_ok(), 2.0)
         hal.deactivate()  # what the executive's fault does: the base stopped, the arm's hold not sendable
         server.loop = RealTimeLoop(server.period, server.tick, "zenoh-robot")
         server.loop.start()
-        assert _wait(lambda: SILENT in (hal.read_state().faults or ()), 3.0), "the robot did not hold"
+        assert wait_for(lambda: SILENT in (hal.read_state().faults or ()), 3.0), "the robot did not hold"
         hal.activate()
         assert SILENT not in hal.read_state().faults
     finally:
@@ -360,17 +352,17 @@ def test_the_zenoh_hal_keeps_an_idle_robot_quiet_and_a_frozen_one_is_held():
         assert proc.stdout is not None and proc.stdin is not None
         assert proc.stdout.readline().strip() == "idle"
         # commanded once (a position target, no feed-forward; a zero twist), then quiet for 1.5 s
-        assert _wait(lambda: server.accepted["cmd_vel"] >= 1 and server.accepted["arm"] >= 1, 2.0)
+        assert wait_for(lambda: server.accepted["cmd_vel"] >= 1 and server.accepted["arm"] >= 1, 2.0)
         time.sleep(1.5)
         assert SILENT not in sim.faults and server.accepted["heartbeat"] >= 10, server.stats()
         proc.stdin.write("go\n")
         proc.stdin.flush()
-        assert _wait(lambda: abs(sim.state().base_velocity[0]) > 0.1, 2.0), "the base never moved"
+        assert wait_for(lambda: abs(sim.state().base_velocity[0]) > 0.1, 2.0), "the base never moved"
         os.kill(proc.pid, signal.SIGSTOP)
         stopped = time.monotonic()
-        assert _wait(lambda: SILENT in sim.faults, 2.0, 0.001), "a frozen executive was not noticed"
+        assert wait_for(lambda: SILENT in sim.faults, 2.0, 0.001), "a frozen executive was not noticed"
         assert time.monotonic() - stopped <= COMMAND_DEADLINE_S + 0.05
-        assert _wait(lambda: abs(sim.state().base_velocity[0]) < 1e-3, 2 * server.period)
+        assert wait_for(lambda: abs(sim.state().base_velocity[0]) < 1e-3, 2 * server.period)
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(10)
@@ -445,7 +437,7 @@ def test_a_daemon_that_cannot_listen_closes_its_robot_session_and_exits_2(tmp_pa
         (line,) = _ours(r.stderr)
         assert line.startswith("rlgp-exec daemon: error: daemon: cannot listen on") and "in use" in line, line
         assert server._executive_seen, "the daemon never reached the robot: the test proves nothing"
-        assert _wait(lambda: LOST in sim.faults, 5.0), "the robot session was left open"  # 2 s missed at load 8
+        assert wait_for(lambda: LOST in sim.faults, 5.0), "the robot session was left open"  # 2 s missed at load 8
     finally:
         sock.close()
         server.stop()

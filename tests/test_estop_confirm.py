@@ -11,12 +11,13 @@ from __future__ import annotations
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import can
 import pytest
+from waiting import wait_for
 
 from rlgp_exec.hal import EstopStatus, Lifecycle, make_backend
 from rlgp_exec.hal import can_nodes as cn
@@ -30,15 +31,6 @@ from rlgp_exec.sim.robot_server_can import CanRobotServer
 
 CONFIRM_WITHIN_S = 5.0  # [s] a re-sent e-stop takes ESTOP_CONFIRM_S + KEEPALIVE_S (0.4 s) unloaded
 QUIET_S = 1.0  # [s] watched after a rearm for a late re-send: ten keepalive periods
-
-
-def _wait(pred: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return pred()
 
 
 @dataclass
@@ -95,15 +87,15 @@ def test_zenoh_a_dropped_estop_is_sent_again_until_the_robot_reports_it():
     with zenoh_rig(drop=1) as (hal, wire, sim):
         t0 = time.monotonic()
         assert hal.estop().ok and hal.lifecycle is Lifecycle.ESTOPPED
-        assert _wait(lambda: sim.estopped, CONFIRM_WITHIN_S), f"never engaged; the robot saw {wire.seen}"
+        assert wait_for(lambda: sim.estopped, CONFIRM_WITHIN_S), f"never engaged; the robot saw {wire.seen}"
         took = time.monotonic() - t0
         assert wire.dropped == 1 and wire.seen[:2] == [True, True], wire.seen
         assert took >= ESTOP_CONFIRM_S, f"re-sent after {took:.2f} s, before the robot had its deadline"
-        assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
+        assert wait_for(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
         status = hal.estop_status()
         assert status.engaged and status.resends >= 1, status
         n = len(wire.seen)  # confirmed: no more re-sends
-        assert not _wait(lambda: len(wire.seen) > n, QUIET_S), wire.seen
+        assert not wait_for(lambda: len(wire.seen) > n, QUIET_S), wire.seen
         assert hal.estop_status() == EstopStatus(True, True, status.resends)
 
 
@@ -111,7 +103,7 @@ def test_zenoh_a_robot_restarted_unstopped_is_estopped_again():
     ep = free_endpoint()
     with zenoh_rig(endpoint=ep) as (hal, wire, _sim):
         assert hal.estop().ok
-        assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
+        assert wait_for(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
         assert hal.estop_status().resends == 0, "an e-stop that arrived was sent again"
         wire.server.stop()  # the robot server restarts and comes up un-stopped
         sim2 = SimRobot("hsr")
@@ -119,9 +111,9 @@ def test_zenoh_a_robot_restarted_unstopped_is_estopped_again():
         wire2 = EstopWire(server2)
         server2.start()
         try:
-            assert _wait(lambda: sim2.estopped, 20.0), f"the restarted robot is free; it saw {wire2.seen}"
+            assert wait_for(lambda: sim2.estopped, 20.0), f"the restarted robot is free; it saw {wire2.seen}"
             assert wire2.seen and all(wire2.seen), wire2.seen
-            assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
+            assert wait_for(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
             assert hal.estop_status().resends >= 1
             assert _robot_estopped(hal)
         finally:
@@ -133,10 +125,10 @@ def test_zenoh_not_hearing_the_robot_keeps_resending():
     with zenoh_rig() as (hal, wire, sim):
         wire.ignore.set()  # the robot takes the e-stops and never reports one
         assert hal.estop().ok
-        assert _wait(lambda: hal.estop_status().resends >= 3, CONFIRM_WITHIN_S), hal.estop_status()
+        assert wait_for(lambda: hal.estop_status().resends >= 3, CONFIRM_WITHIN_S), hal.estop_status()
         assert not hal.estop_status().confirmed and not sim.estopped
         wire.ignore.clear()
-        assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
+        assert wait_for(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S)
         assert sim.estopped
 
 
@@ -160,14 +152,14 @@ def test_zenoh_rearm_during_a_resend_stays_rearmed():
         wire.ignore.clear()  # from here an e-stop that arrives engages the robot
         assert hal.rearm().ok and hal.lifecycle is Lifecycle.INACTIVE
         assert not hal.estop_status().engaged
-        assert _wait(lambda: False in wire.seen, CONFIRM_WITHIN_S), wire.seen
+        assert wait_for(lambda: False in wire.seen, CONFIRM_WITHIN_S), wire.seen
         release = wire.seen.index(False)
         # watched for a while: a late re-send would come within a period and engage the robot again
-        assert not _wait(lambda: sim.estopped or len(wire.seen) > release + 1, QUIET_S), wire.seen
+        assert not wait_for(lambda: sim.estopped or len(wire.seen) > release + 1, QUIET_S), wire.seen
         assert not _robot_estopped(hal) and wire.seen[-1] is False, wire.seen
         resends = hal.estop_status().resends
         assert resends >= 1
-        assert not _wait(lambda: hal.estop_status().resends > resends, 3 * KEEPALIVE_S)
+        assert not wait_for(lambda: hal.estop_status().resends > resends, 3 * KEEPALIVE_S)
 
 
 # ------------------------------------------------------------------------------------------------- CAN
@@ -212,11 +204,11 @@ def test_can_a_drive_that_missed_the_quick_stop_is_sent_it_again():
     ignore = {FLEX}
     with can_rig(ignore) as (hal, server):
         assert hal.estop().ok
-        assert _wait(lambda: hal.estop_status().resends >= 1, CONFIRM_WITHIN_S), hal.estop_status()
+        assert wait_for(lambda: hal.estop_status().resends >= 1, CONFIRM_WITHIN_S), hal.estop_status()
         assert _drive(server, FLEX) == "enabled" and not hal.estop_status().confirmed
         ignore.clear()
-        assert _wait(lambda: _drive(server, FLEX) == "quick_stop", CONFIRM_WITHIN_S)
-        assert _wait(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S), hal.estop_status()
+        assert wait_for(lambda: _drive(server, FLEX) == "quick_stop", CONFIRM_WITHIN_S)
+        assert wait_for(lambda: hal.estop_status().confirmed, CONFIRM_WITHIN_S), hal.estop_status()
 
 
 def test_can_rearm_during_a_resend_stays_rearmed():
@@ -236,8 +228,8 @@ def test_can_rearm_during_a_resend_stays_rearmed():
         assert in_resend.wait(CONFIRM_WITHIN_S), "no re-send to the drive that ignored the quick stop"
         ignore.clear()
         assert hal.rearm().ok and not hal.estop_status().engaged
-        assert _wait(lambda: _drive(server, FLEX) == "switched_on", CONFIRM_WITHIN_S), _drive(server, FLEX)
-        assert not _wait(lambda: _drive(server, FLEX) != "switched_on", QUIET_S), _drive(server, FLEX)
+        assert wait_for(lambda: _drive(server, FLEX) == "switched_on", CONFIRM_WITHIN_S), _drive(server, FLEX)
+        assert not wait_for(lambda: _drive(server, FLEX) != "switched_on", QUIET_S), _drive(server, FLEX)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from waiting import wait_for
 
 from rlgp_exec.hal import CommandStatus, GripperCommand, HalError, Lifecycle, RobotInterface, make_backend
 from rlgp_exec.sim.robot_process import RobotProcess
@@ -327,22 +328,13 @@ def test_heartbeat_loss_is_detected(harness: Harness):
     assert hal.heartbeat_ok()
     harness.stall()
     try:
-        assert _poll(lambda: not hal.heartbeat_ok(), 3.0), "heartbeat loss not detected"
+        assert wait_for(lambda: not hal.heartbeat_ok(), 3.0), "heartbeat loss not detected"
         q = harness.state().positions(hal.setpoint_names)
         assert hal.write_setpoint(q).status is CommandStatus.STALE_STATE
     finally:
         harness.resume()
     assert harness.wait_until(hal.heartbeat_ok, 5.0), "heartbeat did not come back"
     assert hal.write_setpoint(harness.state().positions(hal.setpoint_names)).ok
-
-
-def _poll(pred: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return pred()
 
 
 def test_make_backend_lists_valid_names():

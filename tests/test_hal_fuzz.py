@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from waiting import wait_for
 
 from rlgp_exec.hal import JointSetpoint
 from rlgp_exec.hal import ros_codec as rc
@@ -38,15 +39,6 @@ PARSERS: dict[str, Callable[[bytes], object]] = {
     "odometry": rc.parse_odometry,
 }
 FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-
-
-def _wait(pred: Callable[[], bool], timeout: float = 3.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.002)
-    return pred()
 
 
 # ------------------------------------------------------------------------------------- decoders
@@ -109,7 +101,7 @@ def zenoh_server() -> Iterator[tuple[object, object]]:
     server = ZenohRobotServer(sim, ep, namespace="fuzz")
     server.start()
     client = zenoh.open(session_config(connect=ep))
-    assert _wait(lambda: server.stats()["ticks"] > 5)
+    assert wait_for(lambda: server.stats()["ticks"] > 5)
     yield server, client
     client.close()
     server.stop()
@@ -168,7 +160,7 @@ def test_zenoh_server_rejects_bad_payloads_without_motion(zenoh_server, case):
     before = server.stats()
     q0, base0 = server.sim.state().q.copy(), server.sim.state().base
     client.put(server.keys[topic].key, payload)
-    assert _wait(lambda: server.stats()["rejected_total"] == before["rejected_total"] + 1), (
+    assert wait_for(lambda: server.stats()["rejected_total"] == before["rejected_total"] + 1), (
         topic,
         payload[:40],
         server.stats(),
@@ -202,7 +194,7 @@ def test_zenoh_client_rejects_bad_state_payloads():
         ]
         for key, payload in bad:
             server._session.put(key, payload)
-        assert _wait(lambda: hal.rejects.total == len(bad)), hal.rejects.counts()
+        assert wait_for(lambda: hal.rejects.total == len(bad)), hal.rejects.counts()
         assert set(hal.rejects.counts()) >= {"malformed", "unknown_joint", "non_finite"}
         st_ = hal.read_state()
         assert st_ is not None and np.all(np.isfinite(st_.q)) and not st_.estopped
@@ -306,12 +298,12 @@ def test_can_nodes_reject_bad_frames_without_motion(can_rig, msg):
     before = server.rejects.total
     q0, base0 = server.sim.state().q.copy(), server.sim.state().base
     fuzzer.send(msg)
-    assert _wait(lambda: server.rejects.total == before + 1), (msg, server.rejects.counts())
+    assert wait_for(lambda: server.rejects.total == before + 1), (msg, server.rejects.counts())
     time.sleep(0.02)  # two SYNCs: anything latched would be applied now
     assert not server.sim.estopped
     assert np.allclose(server.sim.state().q, q0, atol=1e-3), msg
     assert np.allclose(server.sim.state().base, base0, atol=1e-3)
-    assert _wait(hal.heartbeat_ok)  # an SDO request or NMT frame not from the HAL makes it verify that node
+    assert wait_for(hal.heartbeat_ok)  # an SDO request or NMT frame not from the HAL makes it verify that node
 
 
 @FUZZ
@@ -330,7 +322,7 @@ def test_can_master_rejects_bad_feedback_frames(can_rig, cob, data):
         data = data + b"\0" if len(data) < 8 else data[:-1]  # always the wrong length
     before = hal.rejects.total
     fuzzer.send(_frame(cob, data))
-    assert _wait(lambda: hal.rejects.total == before + 1), (hex(cob), data, hal.rejects.counts())
+    assert wait_for(lambda: hal.rejects.total == before + 1), (hex(cob), data, hal.rejects.counts())
     st_ = hal.read_state()
     assert st_ is not None and np.all(np.isfinite(st_.q))
 
@@ -353,7 +345,7 @@ def test_can_drives_fault_when_the_master_goes_silent():
         time.sleep(0.3)
         assert not sim.estopped
         hal._periodic.stop()  # the master's heartbeat producer dies (the executive hangs)
-        assert _wait(lambda: sim.estopped, timeout=2.0)
+        assert wait_for(lambda: sim.estopped, timeout=2.0)
         assert any("master heartbeat lost" in f for f in sim.faults), sim.faults
     finally:
         hal.shutdown()

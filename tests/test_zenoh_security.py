@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
+from waiting import wait_for
 
 from rlgp_exec.executive.daemon import Daemon, DaemonOptions, request
 from rlgp_exec.executive.runner import RunOptions
@@ -193,7 +194,7 @@ def test_mutual_tls_and_access_control_keep_unauthorised_peers_from_commanding(p
 
         # the operator e-stops the robot through the daemon
         assert ask("operator", "estop")["ok"]
-        assert _wait(lambda: hal.read_state().estopped, 2.0), "the e-stop did not reach the robot"
+        assert wait_for(lambda: hal.read_state().estopped, 2.0), "the e-stop did not reach the robot"
         base0 = hal.read_state().base
 
         # peers the robot does not admit try to move it and to release its e-stop
@@ -225,7 +226,7 @@ def test_mutual_tls_and_access_control_keep_unauthorised_peers_from_commanding(p
         r = ask("operator", "goal", {"literals": ["(on block tray)"]})
         assert not r["ok"] and "rearm" in r["error"], r
         assert ask("operator", "rearm")["ok"]
-        assert _wait(lambda: not hal.read_state().estopped, 2.0), "the operator's rearm did not reach the robot"
+        assert wait_for(lambda: not hal.read_state().estopped, 2.0), "the operator's rearm did not reach the robot"
 
         # released, the robot still moves for nobody but the executive
         base1 = hal.read_state().base
@@ -262,15 +263,6 @@ def _setpoint(joints):
     from rlgp_exec.hal import JointSetpoint
 
     return JointSetpoint(joints, [0.2] * len(joints))
-
-
-def _wait(pred, timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def test_a_daemon_started_from_a_config_file_serves_over_mutual_tls_only(pki, tmp_path):
