@@ -14,6 +14,7 @@ import pytest
 
 from rlgp_exec.planning.actions import Kind, parse_text
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, using
+from rlgp_exec.planning.capabilities import start_reach_gaps
 from rlgp_exec.planning.gnpp import GnppStatus, Logic, plan_gnpp
 from rlgp_exec.planning.gnpp.conflicts import Checker, ExtractOptions, find_conflict
 from rlgp_exec.planning.gnpp.database import SubgraphDB
@@ -177,16 +178,25 @@ def test_the_database_answers_across_calls_only_where_the_initial_poses_agree(pr
     assert plan_gnpp(moved, "gnpp_trng", timeout_s=90.0, memory=mem).plan.success
 
 
-def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
-    """b5 moved beyond both arms' reach from the start base, which is kept there: impossible."""
+def _b5_at(x: float, y: float):
     scene = _tower(["b5"], ["(on b5 goal_region)"])
-    scene = dataclasses.replace(
-        scene,
-        objects=tuple(dataclasses.replace(o, pose=(0.45, 0.25, o.pose[2], 0.0)) for o in scene.objects),
+    return dataclasses.replace(
+        scene, objects=tuple(dataclasses.replace(o, pose=(x, y, o.pose[2], 0.0)) for o in scene.objects)
     )
+
+
+def _plan_kept_base(scene):
     budget = Budget(60.0, MEMORY_CAP_BYTES)  # the search proves it (the base would otherwise drive there)
     with using(budget):
-        res = _plan(scene, "gnpp_trn", Logic.INTERNAL, 300, None, True, None, False, budget, drive_base=False)
+        return _plan(scene, "gnpp_trn", Logic.INTERNAL, 300, None, True, None, False, budget, drive_base=False)
+
+
+def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
+    """b5 inside the arms' reach bound from the start base, which is kept there, but no top grasp gets
+    to it: impossible, and each learnt conflict is infeasible on its own."""
+    scene = _b5_at(0.25, 0.2)
+    assert not start_reach_gaps(scene)  # not caught by the bound: the search proves it
+    res = _plan_kept_base(scene)
     assert res.status is GnppStatus.INFEASIBLE, res.plan.reason
     assert not res.plan.success and "infeasible" in res.plan.reason
     assert res.conflicts  # the learnt conflicts are the proof; each is infeasible on its own
@@ -196,6 +206,14 @@ def test_unsolvable_goal_ends_infeasible_with_proof(pr2):
         start = {v: lib.home_q(v.owner) if v.kind == "q" else lib.start_pose(v.owner) for v in variables(c.factors)}
         assert not solver.solve(c.factors, start).feasible, str(c)
     assert res.plan.planning_time_s < 60.0
+
+
+def test_beyond_reach_from_a_kept_base_is_infeasible_before_any_nlp():
+    """b5 past the reach bound of both arms from the start base, kept there: refused by the bound, by name."""
+    res = _plan_kept_base(_b5_at(0.45, 0.25))
+    assert res.status is GnppStatus.INFEASIBLE, res.plan.reason
+    assert "b5 is 0.07 m beyond" in res.plan.reason and "drive_base=False" in res.plan.reason
+    assert res.plan.counters["nlp"] == 0
 
 
 def test_small_tower_plan_is_validated():

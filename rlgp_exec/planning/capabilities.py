@@ -28,13 +28,16 @@ __all__ = [
     "ACTION_KINDS",
     "CAPABILITIES",
     "DRAWER_KINDS",
+    "ArmReach",
     "Capability",
+    "ReachGap",
     "TaskRefusedError",
     "arm_reach",
     "beyond_reach",
     "capability",
     "needed_actions",
     "refuse",
+    "start_reach_gaps",
 ]
 
 log = logging.getLogger(__name__)
@@ -131,77 +134,128 @@ def needed_actions(scene: Scene) -> dict[str, str]:
 
 
 @functools.cache
-def arm_reach(robot: str) -> tuple[tuple[str, str, float], ...]:
-    """(manipulator, first arm joint, reach [m]) per arm: the sum of the distances between its joints'
-    origins and the tool frame, at the home pose. No configuration puts the tool point further from the
-    first joint's origin (the triangle inequality), whatever the joints do."""
+class ArmReach(NamedTuple):
+    """How far an arm's tool point can get from its first joint's origin (``arm_reach``)."""
+
+    manipulator: str
+    first_joint: str
+    reach_m: float  # [m] the bound on the distance from the (slid) first joint's origin
+    #: [m] a prismatic first joint's travel from its home value along its axis (e.g. the HSR's lift), (0, 0)
+    #: for a revolute one: the bound holds round every point of that segment
+    slide_m: tuple[float, float] = (0.0, 0.0)
+
+
+def arm_reach(robot: str) -> tuple[ArmReach, ...]:
+    """Per arm, a bound on where its tool point can be: the sum of the distances between its joints'
+    origins and the tool frame at the home pose, round the first joint's origin. No configuration puts the
+    tool point further from it (the triangle inequality), whatever the joints do; a prismatic first joint
+    slides that origin along its axis (``ArmReach.slide_m``). Any other prismatic joint adds its travel."""
     model = load_robot(robot)
     q = model.home()
+    by_name = {j.name: j for j in model.urdf.joints}
     out = []
     for man in model.config.manipulators:
-        names = [model.joint_names[i] for i in model.group(man.group)]
+        idx = list(model.group(man.group))
+        names = [model.joint_names[i] for i in idx]
         pts = [T[:3, 3] for T in model.fk_many(q, [*names, man.tool_frame])]
-        out.append((man.name, names[0], float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(pts)))))
+        reach = float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(pts)))
+        slide = (0.0, 0.0)
+        for k, (i, n) in enumerate(zip(idx, names, strict=True)):
+            j = by_name[n]
+            if j.type != "prismatic":
+                continue
+            lo, hi = float(model.limits.lower[i]) - q[i], float(model.limits.upper[i]) - q[i]
+            if k == 0:
+                slide = (lo, hi)
+            else:
+                reach += max(abs(lo), abs(hi))
+        out.append(ArmReach(man.name, names[0], reach, slide))
     return tuple(out)
 
 
-def _out_of_reach(scene: Scene, moved: list[str]) -> list[str]:
-    """Objects (and goal targets) no arm reaches from the start base, within ``arm_reach``'s bound."""
-    # local: planning.nlp.action brings SciPy and OpenCV
-    from rlgp_exec.planning.nlp.action import target_surface
+class ReachGap(NamedTuple):
+    """An object to be moved (``target`` None), or the goal target it is to be put on, that no arm reaches
+    from the start base: the least distance [m] past every arm's ``arm_reach`` bound."""
 
-    model = load_robot(scene.robot.name)
-    q0 = model.home(scene.robot.base, scene.robot.joints)
-    arms = arm_reach(scene.robot.name)
-    shoulders = [(model.fk(q0, j)[:3, 3], r) for _, j, r in arms]
+    obj: str
+    target: str | None
+    gap_m: float
 
-    def far(point_of) -> float | None:  # the least distance past the reach, None when some arm reaches
-        gaps = [float(np.linalg.norm(point_of(s) - s)) - r for s, r in shoulders]
-        return None if min(gaps) <= 0.0 else min(gaps)
-
-    def top(name: str):
-        o = scene.object(name)
-        return lambda s: np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2])
-
-    reasons = []
-    for name in moved:
-        if name == scene.start.held:
-            continue
-        gap = far(top(name))
-        if gap is not None:
-            reasons.append(f"{name} is {gap:.2f} m beyond")
-    for lit in scene.goal.literals:
-        if lit.predicate != "on" or lit.args[0] not in moved:
-            continue
-        target = lit.args[1]
-        if target in {o.name for o in scene.objects}:
-            gap = far(top(target))
-        else:
-            T, (hx, hy), z = target_surface(scene, target)
-
-            def nearest(s, T=T, hx=hx, hy=hy, z=z):  # the target rectangle's point nearest the shoulder
-                local = T[:2, :2].T @ (s[:2] - T[:2, 3])
-                xy = T[:2, :2] @ np.clip(local, [-hx, -hy], [hx, hy]) + T[:2, 3]
-                return np.array([xy[0], xy[1], z])
-
-            gap = far(nearest)
-        if gap is not None:
-            reasons.append(f"{target} (the target of {lit.args[0]}) is {gap:.2f} m beyond")
-    return reasons
+    def __str__(self) -> str:
+        if self.target is None:
+            return f"{self.obj} is {self.gap_m:.2f} m beyond"
+        return f"{self.target} (the target of {self.obj}) is {self.gap_m:.2f} m beyond"
 
 
-def beyond_reach(scene: Scene) -> list[str]:
-    """Why the scene's task cannot be done from the start base: each object to be moved, and each goal
-    target, that no arm reaches from there within ``arm_reach``'s bound (a sound bound: an empty list does
-    not prove that the start base serves, a reason proves that it does not). A goal naming an object the
-    scene lacks has no reach to bound (the planners name it as an invalid goal): none."""
-    # local: planning.feasibility brings SciPy and OpenCV
+def start_reach_gaps(scene: Scene) -> list[ReachGap]:
+    """The objects to be moved, and the goal targets ("on") they go to, that no arm reaches from the start
+    base within ``arm_reach``'s bound: a grasp point is an object's top centre; a target's is the top of
+    the object put on it at the target's point nearest the arm. Sound: each gap proves that no hand gets
+    there while the base stays at its start (an empty list does not prove that it serves). A goal naming
+    an object the scene lacks has no reach to bound (the planners name it as an invalid goal): none."""
+    # local: planning.feasibility and planning.nlp.action bring SciPy and OpenCV
     from rlgp_exec.planning.feasibility import moved_objects
+    from rlgp_exec.planning.nlp.action import target_surface
 
     names = {o.name for o in scene.objects}
     if any(lit.args[0] not in names for lit in scene.goal.literals if lit.predicate in ("on", "in")):
         return []
-    return _out_of_reach(scene, moved_objects(scene))
+    moved = moved_objects(scene)
+    model = load_robot(scene.robot.name)
+    q0 = model.home(scene.robot.base, scene.robot.joints)
+    arms = []
+    for a in arm_reach(scene.robot.name):
+        T = model.fk(q0, a.first_joint)
+        axis = np.zeros(3)
+        if a.slide_m != (0.0, 0.0):  # a prismatic joint translates its child frame along its axis
+            dq = np.zeros(model.nq)
+            dq[model.index(a.first_joint)] = 1e-3
+            axis = (model.fk(q0 + dq, a.first_joint)[:3, 3] - T[:3, 3]) / 1e-3
+        arms.append((T[:3, 3] + a.slide_m[0] * axis, T[:3, 3] + a.slide_m[1] * axis, a.reach_m))
+
+    def gap(point_of) -> float | None:  # the least distance past the reach, None when some arm reaches
+        gaps = []
+        for s0, s1, r in arms:
+            p = point_of(0.5 * (s0 + s1))
+            d = s1 - s0
+            u = 0.0 if not d.any() else float(np.clip((p - s0) @ d / (d @ d), 0.0, 1.0))
+            gaps.append(float(np.linalg.norm(p - (s0 + u * d))) - r)
+        return None if min(gaps) <= 0.0 else min(gaps)
+
+    def top(name: str, height: float = 0.0):
+        o = scene.object(name)
+        return lambda s: np.asarray(o.pose[:3], float) + np.array([0.0, 0.0, o.size[2] / 2 + height])
+
+    out = []
+    for name in moved:
+        if name == scene.start.held:
+            continue
+        g = gap(top(name))
+        if g is not None:
+            out.append(ReachGap(name, None, g))
+    for lit in scene.goal.literals:
+        if lit.predicate != "on" or lit.args[0] not in moved:
+            continue
+        target, h = lit.args[1], scene.object(lit.args[0]).size[2]
+        if target in names:
+            g = gap(top(target, h))
+        else:
+            T, (hx, hy), z = target_surface(scene, target)
+
+            def nearest(s, T=T, hx=hx, hy=hy, z=z + h):  # the target rectangle's point nearest the arm
+                local = T[:2, :2].T @ (s[:2] - T[:2, 3])
+                xy = T[:2, :2] @ np.clip(local, [-hx, -hy], [hx, hy]) + T[:2, 3]
+                return np.array([xy[0], xy[1], z])
+
+            g = gap(nearest)
+        if g is not None:
+            out.append(ReachGap(lit.args[0], target, g))
+    return out
+
+
+def beyond_reach(scene: Scene) -> list[str]:
+    """Why the scene's task cannot be done from the start base (``start_reach_gaps``, as text)."""
+    return [str(g) for g in start_reach_gaps(scene)]
 
 
 def refuse(scene: Scene, planner: str) -> None:
@@ -235,7 +289,7 @@ def refuse(scene: Scene, planner: str) -> None:
                            and set(needed) <= c.actions})
             use = (f"{' and '.join(able)} drive{'s' if len(able) == 1 else ''} the base: use --planner {able[0]}"
                    if able else "no planner here drives its base with these actions")
-            reach = ", ".join(f"{m} {r:.2f} m" for m, _, r in arm_reach(scene.robot.name))
+            reach = ", ".join(f"{a.manipulator} {a.reach_m:.2f} m" for a in arm_reach(scene.robot.name))
             raise TaskRefusedError(scene, "[robot].base",
                                    f"{planner}: keeps the {scene.robot.name}'s base at its start, where its arms "
                                    f"reach at most {reach} from their first joints: " + _listed(far) + f"; {use}")

@@ -26,7 +26,7 @@ import numpy as np
 from rlgp_exec.errors import RlgpError
 from rlgp_exec.planning.actions import GNPP_ACTIONS, Kind, ground_text
 from rlgp_exec.planning.budget import MEMORY_CAP_BYTES, Budget, BudgetError, cpu_clock, using
-from rlgp_exec.planning.capabilities import beyond_reach, refuse
+from rlgp_exec.planning.capabilities import refuse, start_reach_gaps
 from rlgp_exec.planning.gnpp.conflicts import (
     FILTER_MAX,
     FILTER_MAX_NO_ROBOT,
@@ -41,6 +41,7 @@ from rlgp_exec.planning.gnpp.graph import generalise, to_forbidden, variables
 from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import Var, add_flags, add_moves, factors_of
+from rlgp_exec.planning.gnpp.priors import reach_priors
 from rlgp_exec.planning.gnpp.repair import repair_transits
 from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
@@ -192,8 +193,9 @@ def _plan(
     t0, c0 = time.perf_counter(), budget.start
     model = load_robot(scene.robot.name)
     lib = FactorLib(model, scene, drive_base)
+    gaps = start_reach_gaps(scene)
     if lib.mobile and lib.riders:
-        log.info("%s: the base moves (its arms share it): %s", scene.name, "; ".join(beyond_reach(scene)) or "asked")
+        log.info("%s: the base moves (its arms share it): %s", scene.name, "; ".join(map(str, gaps)) or "asked")
     ik, solver = TopIK(lib), GraphSolver(lib)
     solver.observer = on_nlp
     if lm_verdicts:
@@ -216,7 +218,11 @@ def _plan(
         task = dataclasses.replace(task, operators=ops)
         log.warning("%s: wider than the open gripper, not picked: %s", scene.name, wide)
     objects = [o.name for o in scene.objects]
-    forbidden: list[ForbiddenSequence] = []
+    priors = reach_priors(gaps, lib.arms, lib.base_arm, lib.riders, task.init) if lib.mobile else []
+    if priors:
+        log.info("%s: %d conflicts from the arms' reach of the start base: %s", scene.name, len(priors),
+                 "; ".join(sorted({str(g) for _, g in priors})))
+    forbidden: list[ForbiddenSequence] = [f for f, _ in priors]
     found: list[Conflict] = []
     n0, logic_s, blocked_plans, refuted = None, 0.0, 0, 0
     reasons: list[str] = []
@@ -251,6 +257,10 @@ def _plan(
         plan = replace(plan, planning_time_s=time.perf_counter() - t0, counters=counters)
         return GnppResult(status, plan, tuple(forbidden), tuple(found), n0, it, logic_s, counters)
 
+    if gaps and not lib.mobile:
+        return result(GnppStatus.INFEASIBLE, f"infeasible: the {scene.robot.name}'s base is kept at its start "
+                      "(drive_base=False), where no arm reaches: " + "; ".join(map(str, gaps)))
+
     for it in range(1, max_iterations + 1):
         budget.scope, budget.stage = f"iteration {it}", "logic plan"
         try:
@@ -263,6 +273,8 @@ def _plan(
                 proof = ""
                 if status is GnppStatus.INFEASIBLE:
                     proof = f" (every logic plan contains one of {len(found)} learnt conflicts"
+                    if priors:
+                        proof += f" or of {len(priors)} from the reach of the start base"
                     if blocked_plans:  # not a proof: a whole plan is blocked after a solver, layout or replay failure
                         proof += f" or is one of {blocked_plans} plans blocked after failing, which proves nothing"
                     proof += ")"

@@ -11,11 +11,12 @@ free or the held object. Two flag atoms are added so that Pi is time-invariant: 
 
 A mobile arm (an arm on a mobile base: the paper's Field scenario) gets the paper's two move operators
 (``add_moves``): ``(start-move m)`` adds ``(moving m)``, ``(end-move m)`` deletes it, and pick / place /
-stack by m require ``(not (moving m))``. While m is moving its base may change; otherwise ``EqualBase``
-holds it between time steps, so a base pose that cannot reach two keyframes is a conflict like any
-other, and the logic learns to move the base between them. Further arms on the same base (the PR2's
-second arm: a "rider" of m) have no move operators of their own: their actions also require
-``(not (moving m))``, and ``SameBase`` ties the base in their variable to m's at every step.
+stack by m require ``(not (moving m))``; ``(base-at-start m)`` holds until m's first start-move (what the
+start base cannot reach is forbidden with it up front: ``priors``). While m is moving its base may
+change; otherwise ``EqualBase`` holds it between time steps, so a base pose that cannot reach two
+keyframes is a conflict like any other, and the logic learns to move the base between them. Further
+arms on the same base (the PR2's second arm: a "rider" of m) have no move operators of their own:
+their actions also require ``(not (moving m))``, and ``SameBase`` ties the base in their variable to m's at every step.
 
 Continuous variables per time step t (the state s_t, i.e. after the t-th action): ``q``/arm (7,; a
 mobile arm: base x, y, yaw and its joints) and ``x``/object (4,) (see ``geometry``). Pi (each factor
@@ -56,7 +57,7 @@ from rlgp_exec.planning.gnpp.factor import INITIAL, MOVES, Factor, Var
 from rlgp_exec.planning.gnpp.factor import partial_state as _ps
 from rlgp_exec.planning.symbolic.model import Atom, GroundAction, GroundProblem, Operator, SymbolicState
 
-__all__ = ["INITIAL", "MOVES", "Factor", "Var", "add_flags", "add_moves", "factors_of", "moving", "parents"]
+__all__ = ["INITIAL", "MOVES", "Factor", "Var", "add_flags", "add_moves", "at_start", "factors_of", "moving", "parents"]
 
 def add_flags(problem: GroundProblem) -> GroundProblem:
     """``problem`` with the flag atoms (at-init o) and (initial-state) (see the module docstring)."""
@@ -78,6 +79,11 @@ def moving(arm: str) -> Atom:
     return ("moving", arm)
 
 
+def at_start(arm: str) -> Atom:
+    """The atom (base-at-start m): the mobile arm m's base has not moved yet (no start-move so far)."""
+    return ("base-at-start", arm)
+
+
 def add_moves(problem: GroundProblem, arms: Sequence[str], riders: Mapping[str, str] | None = None) -> GroundProblem:
     """``problem`` with start-move / end-move for each mobile arm in ``arms``, and pick / place / stack by
     it, or by an arm riding its base (``riders``: arm -> the mobile arm), only while it is not moving (see
@@ -93,9 +99,10 @@ def add_moves(problem: GroundProblem, arms: Sequence[str], riders: Mapping[str, 
         ops.append(op)
     for m in arms:
         start, end = GroundAction(MOVES[0], (m,)), GroundAction(MOVES[1], (m,))
-        ops.append(Operator(start, frozenset(), frozenset({moving(m)}), frozenset({moving(m)}), frozenset()))
+        ops.append(Operator(start, frozenset(), frozenset({moving(m)}), frozenset({moving(m)}),
+                            frozenset({at_start(m)})))
         ops.append(Operator(end, frozenset({moving(m)}), frozenset(), frozenset(), frozenset({moving(m)})))
-    return dataclasses.replace(problem, operators=tuple(ops))
+    return dataclasses.replace(problem, operators=tuple(ops), init=problem.init | {at_start(m) for m in arms})
 
 
 def parents(state: SymbolicState) -> dict[str, str]:
