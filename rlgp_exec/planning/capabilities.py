@@ -133,7 +133,6 @@ def needed_actions(scene: Scene) -> dict[str, str]:
     return need
 
 
-@functools.cache
 class ArmReach(NamedTuple):
     """How far an arm's tool point can get from its first joint's origin (``arm_reach``)."""
 
@@ -145,6 +144,7 @@ class ArmReach(NamedTuple):
     slide_m: tuple[float, float] = (0.0, 0.0)
 
 
+@functools.cache
 def arm_reach(robot: str) -> tuple[ArmReach, ...]:
     """Per arm, a bound on where its tool point can be: the sum of the distances between its joints'
     origins and the tool frame at the home pose, round the first joint's origin. No configuration puts the
@@ -164,7 +164,7 @@ def arm_reach(robot: str) -> tuple[ArmReach, ...]:
             j = by_name[n]
             if j.type != "prismatic":
                 continue
-            lo, hi = float(model.limits.lower[i]) - q[i], float(model.limits.upper[i]) - q[i]
+            lo, hi = float(model.limits.lower[i] - q[i]), float(model.limits.upper[i] - q[i])
             if k == 0:
                 slide = (lo, hi)
             else:
