@@ -12,7 +12,7 @@ import pytest
 
 from rlgp_exec.planning.capabilities import beyond_reach, refuse
 from rlgp_exec.planning.gnpp import GnppStatus, plan_gnpp
-from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.geometry import MAX_TILT, FactorLib
 from rlgp_exec.planning.gnpp.guess import TopIK, initial_guess
 from rlgp_exec.planning.gnpp.pntc import add_flags, add_moves, factors_of, moving
 from rlgp_exec.planning.symbolic import GroundAction, SymbolicError, ground_scene
@@ -112,3 +112,65 @@ def test_gnpp_drives_the_pr2_to_a_tray_beyond_reach_and_the_replay_validates_it(
     side_table = next(f for f in scene.fixtures if f.name == "table_blue")
     at = plan.phases[place].path[-1][:2]  # beside the side table (its centre 2.4 m from the start)
     assert np.linalg.norm(at - np.asarray(side_table.pose[:2])) < 1.5 < np.linalg.norm(at - base[0])
+
+
+def test_a_driven_pr2_carries_at_its_side_clear_of_itself(pr2):
+    """The start posture (the tuck) interlocks the arms a centimetre apart: an idle arm holding an object
+    waits in ``carry_q`` instead, the tool below and outside its shoulder pointing down, each arm's posture
+    clear of the other arm (tucked or carrying too) in PyBullet; robots whose arms do not share a driven
+    base have none (the start posture serves)."""
+    import pybullet as p
+
+    from rlgp_exec.planning.gnpp.motion import carry_q
+    from rlgp_exec.robot.pybullet_body import PyBulletRobot
+
+    lib = FactorLib(pr2, _one_block())
+    ik = TopIK(lib)
+    carry = {arm: carry_q(lib, ik, arm) for arm in lib.arms}
+    client = p.connect(p.DIRECT)
+    try:
+        robot = PyBulletRobot(pr2, client, collision_only=True)
+        for arm, q in carry.items():
+            assert q is not None
+            T = lib.tool_T(arm, q)
+            approach = T[:3, :3] @ np.asarray(pr2.manipulator(arm).approach, float)
+            assert approach[2] <= -np.cos(MAX_TILT) + 1e-6  # pointing down (TopIK's tilt bound)
+            shoulder = pr2.fk(lib.q_nominal, pr2.joint_names[pr2.group(pr2.manipulator(arm).group)[0]])
+            assert T[2, 3] < shoulder[2, 3]
+            assert not robot.in_collision(lib.full_q({arm: q}))
+        assert not robot.in_collision(lib.full_q(carry))
+    finally:
+        p.disconnect(client)
+    assert carry_q(FactorLib(pr2, load_scene(SCENES / "tower_pr2.toml")), ik, "left_arm") is None
+    hsr = FactorLib(load_robot("hsr"), load_scene(SCENES / "sorting_hsr.toml"))
+    assert carry_q(hsr, TopIK(hsr), hsr.arms[0]) is None
+
+
+def test_a_seeded_pick_takes_the_base_tied_to_it_along(pr2):
+    """``ik_seed`` on a bearing round the object moves the picking arm's base: the arm variables the subgraph
+    ties to it (``EqualBase`` the step before, ``SameBase`` the other arm) start on that base too, not where
+    the guess had them."""
+    from rlgp_exec.planning.gnpp.graph import variables
+    from rlgp_exec.planning.gnpp.guess import ik_seed
+
+    scene = _one_block()
+    lib = FactorLib(pr2, scene)
+    ik = TopIK(lib)
+    mover = lib.base_arm
+    task = add_flags(add_moves(ground_scene(scene, manipulators=list(lib.arms)), [mover], lib.riders))
+    acts = [GroundAction.parse(a) for a in (f"(start-move {mover})", f"(end-move {mover})",
+                                            f"(pick {mover} block_blue table_mid)")]
+    states = task.simulate(acts)
+    graph = factors_of(states, lib.arms, ["block_blue"], [mover], lib.riders)
+    guess = initial_guess(lib, ik, states, variables(graph))
+    kin = next(f for f in graph if f.kind == "Kin")
+    sub = [kin, *(f for f in graph if f.kind in ("EqualBase", "SameBase") and kin.vars[0] in f.vars)]
+    tied = {v for f in sub for v in f.vars if v.kind == "q"}
+    assert len(tied) == 3  # the pick's, the same arm's the step before, the other arm's
+    for bearing in (1, 4):
+        seeded = ik_seed(lib, ik, sub, guess, bearing)
+        base = seeded[kin.vars[0]][:3]
+        assert not np.allclose(base, guess[kin.vars[0]][:3])  # the bearing moved it
+        for v in tied:
+            assert np.allclose(seeded[v][:3], base), v
+            assert np.allclose(seeded[v][3:], guess[v][3:]) or v == kin.vars[0]

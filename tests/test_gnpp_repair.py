@@ -76,3 +76,33 @@ def test_the_sphere_coverage_tool_reports_every_link_with_a_hull():
         f = float(frac.rstrip("%")) / 100
         assert 0.0 <= f <= 1.0 and 0.0 <= float(median) <= float(worst), name
         assert (f == 0.0) == (float(worst) == 0.0), name
+
+
+def test_repair_goes_round_after_round_until_the_replay_passes(monkeypatch):
+    """The replay stops at its first collision, so each round repairs one phase: phase 1, then phase 3 (found
+    only once 1 passes), then the replay passes. A phase that collides again after its repair, or a move
+    that cannot be repaired, ends the rounds with the replay's verdict as it stands."""
+    from rlgp_exec.planning.gnpp import repair
+    from rlgp_exec.planning.validate import Validation
+
+    def verdict(*collisions: str) -> Validation:
+        return Validation(not collisions, True, collisions, (), {})
+
+    def run(replays: list[Validation], repairable: bool = True) -> tuple[Validation, list[tuple[int, ...]]]:
+        calls: list[tuple[int, ...]] = []
+
+        def fake_repair(lib, phases, transits, collisions):
+            calls.append(tuple(sorted(repair.collided_phases(collisions))))
+            return list(phases) if repairable else None
+
+        monkeypatch.setattr(repair, "repair_transits", fake_repair)
+        monkeypatch.setattr(repair, "validate_with_fallbacks", lambda sc, ph, fb: (replays.pop(0), ph, set()))
+        v, _, _ = repair.repair_rounds(None, None, [], [], verdict("phase 1: robot a ~ table"), {}, set())
+        return v, calls
+
+    v, calls = run([verdict("phase 3: held o ~ table"), verdict()])
+    assert v.collision_free and calls == [(1,), (3,)]
+    v, calls = run([verdict("phase 3: held o ~ table"), verdict("phase 1: robot a ~ b")])
+    assert not v.collision_free and v.collisions == ("phase 1: robot a ~ b",) and calls == [(1,), (3,)]
+    v, calls = run([], repairable=False)
+    assert not v.collision_free and calls == [(1,)]

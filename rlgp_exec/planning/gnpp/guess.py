@@ -364,9 +364,14 @@ def ik_seed(
     ``bearing`` k > 0 (a mobile arm): the IK starts with the base at the k-th of ``_ring_starts``' bearings
     round the object (nearest the guess's base first), not at the guess's: from the guess's base the IK
     stops at the first posture that reaches (often at the tilt bound, the fingers off the faces), where
-    the subgraph's solve fails again; the other bearings give other bases and postures."""
+    the subgraph's solve fails again; the other bearings give other bases and postures. On robots whose
+    arms share a driven base (``FactorLib.riders``) the new base goes to every arm variable the subgraph
+    ties to it (``EqualBase``, ``SameBase``: a start with the other arm, or the posture before the pick, at
+    the old base fails), and a later switch on a base so set first tries to reach from it (not on the
+    one-armed HSR, where the same starts lose conflicts' refutations)."""
     out = dict(guess)
     cols = {f.vars[0]: f.key for f in factors if f.kind == "ColFix" and len(f.key) > 2}  # drawer-tagged ones
+    based: set[Var] = set()  # the arm variables whose base a switch's IK below set
     for f in factors:
         if f.kind != "Kin":
             continue
@@ -376,13 +381,35 @@ def ik_seed(
         h = lib.objects[o].size[2]
         top = w[:3] + np.array([0.0, 0.0, h / 2 - min(0.025, h / 2)])
         q_ref = np.asarray(out[q_var], float)
-        if bearing > 0 and lib.mobile:
-            home = lib.home_q(arm)
-            home[:3] = q_ref[:3]
-            rings = _ring_starts(home, top, q_ref)
-            q_ref = rings[(bearing - 1) % len(rings)]
-        ok, q = ik.solve(arm, top, q_ref, col_key=cols.get(q_var))
+        ok = False
+        if q_var in based:  # a base an earlier switch of this subgraph chose: kept if the arm reaches from it
+            ok, q = ik.solve(arm, top, q_ref, fixed_base=True, col_key=cols.get(q_var))
+        if not ok:
+            if bearing > 0 and lib.mobile:
+                home = lib.home_q(arm)
+                home[:3] = q_ref[:3]
+                rings = _ring_starts(home, top, q_ref)
+                q_ref = rings[(bearing - 1) % len(rings)]
+            ok, q = ik.solve(arm, top, q_ref, col_key=cols.get(q_var))
         if ok:
             out[q_var] = q
             out[r_var] = _held_of(lib, arm, q, w)
+            if lib.riders:  # the arms that share this base in the subgraph (EqualBase, SameBase) go with it
+                tied = _base_tied(factors, q_var)
+                for v in tied - {q_var}:
+                    out[v] = np.r_[q[:3], np.asarray(out[v], float)[3:]]
+                based |= tied
     return out
+
+
+def _base_tied(factors: Sequence[Factor], start: Var) -> set[Var]:
+    """The arm variables the subgraph's ``EqualBase`` and ``SameBase`` factors tie to ``start``'s base."""
+    edges = [f.vars for f in factors if f.kind in ("EqualBase", "SameBase")]
+    tied, grew = {start}, True
+    while grew:
+        grew = False
+        for a, b in edges:
+            if (a in tied) != (b in tied):
+                tied |= {a, b}
+                grew = True
+    return tied

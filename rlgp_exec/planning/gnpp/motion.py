@@ -37,11 +37,12 @@ from rlgp_exec.reach.ompl_plan import drive_base, drive_postures
 from rlgp_exec.robot.model import FloatArray
 from rlgp_exec.scene.geometry import object_box
 
-__all__ = ["LIFT", "Transit", "phases_of", "place", "world_checker"]
+__all__ = ["CARRY", "LIFT", "Transit", "carry_q", "phases_of", "place", "world_checker"]
 
 LIFT_STEPS = 5  # rows of a lift (2 cm apart): straight up in the world, not only in joint space
 LIFT_NEWTON = 20  # damped least-squares iterations per row at most
 LIFT_TOL = 1e-3  # [m, rad] a lift row's largest position or orientation error
+CARRY = (0.40, 0.20, 0.10)  # [m] the carrying tool ahead of, outwards of and below the arm's first joint
 DRIVE_TIMEOUT = 2.0  # [s] OMPL's time for a base path round the fixtures (per posture tried)
 
 
@@ -102,6 +103,29 @@ def _lift(lib: FactorLib, ik: TopIK, arm: str, q: FloatArray) -> list[FloatArray
     pos = lib.tool_T(arm, q)[:3, 3] + np.array([0.0, 0.0, LIFT])
     ok, q_up = ik.solve(arm, pos, q, fixed_base=True)
     return [q_up] if ok else None
+
+
+def carry_q(lib: FactorLib, ik: TopIK, arm: str) -> FloatArray | None:
+    """The arm's variable in its carrying posture, or None: where an idle arm that holds an object waits
+    while the other acts or the base drives, on a robot whose arms share a driven base (the PR2's start
+    posture is the tuck, the arms interlocked a centimetre apart: it holds nothing, and an arm leaving it
+    or coming back sweeps through the other). The tool ``CARRY`` ahead of, beside and below the arm's
+    first joint at the start base, approach down (``TopIK``: clear of the fixtures there); None on other
+    robots or if no such posture is found. Solved once per ``ik``."""
+    if not (lib.mobile and lib.riders):
+        return None
+    memo = ik.__dict__.setdefault("_carry", {})
+    if arm not in memo:
+        model, q0 = lib.model, lib.q_nominal
+        first = model.joint_names[model.group(model.manipulator(arm).group)[0]]
+        T_shoulder, T_base = model.fk_many(q0, [first, "base_link"])  # pinocchio names a joint's frame after it
+        side = 1.0 if (np.linalg.inv(T_base) @ T_shoulder)[1, 3] > 0 else -1.0
+        ahead, out, down = CARRY
+        pos = T_shoulder[:3, 3] + T_base[:3, :3] @ np.array([ahead, side * out, -down])
+        ok, q = ik.solve(arm, pos, lib.home_q(arm), fixed_base=True)
+        memo[arm] = q if ok else None
+    q = memo[arm]
+    return None if q is None else q.copy()
 
 
 def world_checker(
@@ -178,8 +202,10 @@ def phases_of(
         return {o: drawers.world(lib, o, values, k) for o in lib.objects if o not in holding.values()}
 
     def home(arm: str) -> FloatArray:
-        """The arm's start posture where the base now stands."""
-        q = lib.home_q(arm)
+        """The arm's start posture where the base now stands; holding an object, its carrying posture
+        (``carry_q``) where there is one."""
+        carry = carry_q(lib, ik, arm) if arm in holding else None
+        q = lib.home_q(arm) if carry is None else carry
         if lib.mobile:
             q[:3] = cur[arm][:3]
         return q

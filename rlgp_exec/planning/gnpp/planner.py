@@ -42,7 +42,7 @@ from rlgp_exec.planning.gnpp.guess import TopIK, ik_seed, initial_guess
 from rlgp_exec.planning.gnpp.motion import phases_of
 from rlgp_exec.planning.gnpp.pntc import Var, add_flags, add_moves, factors_of
 from rlgp_exec.planning.gnpp.priors import reach_priors
-from rlgp_exec.planning.gnpp.repair import repair_transits
+from rlgp_exec.planning.gnpp.repair import repair_rounds
 from rlgp_exec.planning.gnpp.solver import LM_MAX_FACTORS, GraphSolver, SolverRun
 from rlgp_exec.planning.gnpp.trajectory import Trajectories
 from rlgp_exec.planning.memory import PlannerMemory
@@ -371,11 +371,8 @@ def _realise(
     validation, phases, kept = validate_with_fallbacks(scene, phases, fallbacks)
     if traj is not None:
         traj.kept(len(fallbacks) - len(kept), validation.ok and bool(kept))
-    if not validation.collision_free:  # the phases that collide are on their straight moves: repair those
-        repaired = repair_transits(lib, phases, transits, validation.collisions)
-        if repaired is not None:
-            log.info("%s: the replay collided (%s); again with moves OMPL planned", variant, validation.collisions[0])
-            validation, phases, kept = validate_with_fallbacks(scene, repaired, {k: fallbacks[k] for k in kept})
+    if not validation.collision_free:
+        validation, phases, kept = repair_rounds(scene, lib, phases, transits, validation, fallbacks, kept, variant)
     return Plan(
         validation.ok,
         variant,

@@ -15,21 +15,27 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
 
 from rlgp_exec.planning.gnpp.geometry import FactorLib
 from rlgp_exec.planning.gnpp.motion import Transit, place, world_checker
-from rlgp_exec.planning.validate import Phase
+from rlgp_exec.planning.validate import Phase, Validation, validate_with_fallbacks
 from rlgp_exec.reach.ompl_plan import plan_ompl
+from rlgp_exec.scene import Scene
 
-__all__ = ["OMPL_TIMEOUT_S", "repair_transits"]
+__all__ = ["OMPL_TIMEOUT_S", "collided_phases", "repair_rounds", "repair_transits"]
 
 log = logging.getLogger(__name__)
 OMPL_TIMEOUT_S = 1.0  # [s] OMPL's time per move planned again
 _PHASE = re.compile(r"phase (\d+):")
+
+
+def collided_phases(collisions: Sequence[str]) -> set[int]:
+    """The phase indices the replay's ``collisions`` name (``"phase k: ..."``)."""
+    return {int(m.group(1)) for c in collisions if (m := _PHASE.match(c))}
 
 
 def repair_transits(
@@ -38,7 +44,7 @@ def repair_transits(
     """The phases with every move (``transits``, rows of the straight ``phases``) of a phase named in the
     replay's ``collisions`` that fails the exact edge check replaced by an OMPL path; None if there is none
     to repair (no move of those phases collides) or OMPL finds no certified path for one."""
-    bad = {int(m.group(1)) for c in collisions if (m := _PHASE.match(c))}
+    bad = collided_phases(collisions)
     out, repaired = list(phases), 0
     checkers: dict = {}  # arm -> its WorldChecker, built once (a PyBullet world each)
     try:
@@ -67,3 +73,27 @@ def repair_transits(
         for checker in checkers.values():
             checker.close()
     return out if repaired else None
+
+
+def repair_rounds(
+    scene: Scene, lib: FactorLib, phases: Sequence[Phase], transits: Sequence[Transit], validation: Validation,
+    fallbacks: Mapping[int, Phase], kept: set[int], label: str = "gnpp",
+) -> tuple[Validation, list[Phase], set[int]]:
+    """The replay's (validation, phases, kept: the phases still on their optimised paths) after repairing
+    (``repair_transits``) what it found colliding, round after round: the replay stops at the first
+    collision, so one round repairs one phase. It stops when the replay passes, when no move of the colliding
+    phase can be repaired, or when a phase repaired before collides again (its OMPL rows are no longer the
+    ones the transits index): at most one round per phase. ``fallbacks``: the originals of the optimised
+    phases (``validate_with_fallbacks``)."""
+    out, done = list(phases), set[int]()
+    while not validation.collision_free:
+        bad = collided_phases(validation.collisions)
+        if not bad or bad & done:
+            break
+        repaired = repair_transits(lib, out, transits, validation.collisions)
+        if repaired is None:
+            break
+        done |= bad
+        log.info("%s: the replay collided (%s); again with moves OMPL planned", label, validation.collisions[0])
+        validation, out, kept = validate_with_fallbacks(scene, repaired, {k: fallbacks[k] for k in kept})
+    return validation, out, kept
