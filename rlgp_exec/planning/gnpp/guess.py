@@ -57,6 +57,7 @@ class TopIK:
         self._unreachable: set[tuple] = set()
         self.n_solves = 0
         self.n_screened = 0  # later starts first tried by LM (``IK_SCREEN``)
+        self.carry: dict[str, FloatArray | None] = {}  # per arm: ``motion.carry_q``'s posture, solved once
 
     def _solver(self, arm: str, col_key: tuple[str, ...] | None = None):
         """The IK's solver for ``arm`` with the ``ColFix`` factor ``col_key`` (default: the fixtures alone;

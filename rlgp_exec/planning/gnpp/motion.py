@@ -114,7 +114,7 @@ def carry_q(lib: FactorLib, ik: TopIK, arm: str) -> FloatArray | None:
     robots or if no such posture is found. Solved once per ``ik``."""
     if not (lib.mobile and lib.riders):
         return None
-    memo = ik.__dict__.setdefault("_carry", {})
+    memo = ik.carry
     if arm not in memo:
         model, q0 = lib.model, lib.q_nominal
         first = model.joint_names[model.group(model.manipulator(arm).group)[0]]
@@ -122,8 +122,8 @@ def carry_q(lib: FactorLib, ik: TopIK, arm: str) -> FloatArray | None:
         side = 1.0 if (np.linalg.inv(T_base) @ T_shoulder)[1, 3] > 0 else -1.0
         ahead, out, down = CARRY
         pos = T_shoulder[:3, 3] + T_base[:3, :3] @ np.array([ahead, side * out, -down])
-        ok, q = ik.solve(arm, pos, lib.home_q(arm), fixed_base=True)
-        memo[arm] = q if ok else None
+        ok, q_ik = ik.solve(arm, pos, lib.home_q(arm), fixed_base=True)
+        memo[arm] = q_ik if ok else None
     q = memo[arm]
     return None if q is None else q.copy()
 
