@@ -572,9 +572,11 @@ def test_zenoh_pick_place_pr2_reaches_its_goal(tmp_path):
         rec.close()
     assert result.status is TaskStatus.SUCCEEDED and result.verified, result.detail
     events = [msg for _, msg in read_recording(rec.path).topic("/events")]
-    # one plan, no replan: a monitor's replan here once hid a held block hanging 6.6 cm below its grasp
-    # (the sim's grasp constraint, fixed) that swept a standing block away
-    assert result.replans == 0, [e for e in events if e["kind"] == "violation"]
+    # no object moved: a replan here once hid a held block hanging 6.6 cm below its grasp (the sim's grasp
+    # constraint, fixed) that swept a standing block away. A starved sim robot may lag its setpoints on a
+    # loaded machine: a tracking stop and the replan from where it stopped are the executive doing its job
+    violations = [e for e in events if e["kind"] == "violation"]
+    assert all(e["monitor"] in ("tracking", "start_state") for e in violations), violations
     placed = sorted(w.obj for w in map(parse_text, result.actions) if w.name == "place")
     assert placed == ["block_a", "block_b", "block_c"]
     assert events[-1]["status"] == "succeeded"

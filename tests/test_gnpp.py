@@ -571,10 +571,13 @@ def test_a_point_out_of_reach_is_tried_from_one_start_when_asked_again(pr2, monk
 
     lib = FactorLib(pr2, _tower(["b1"], ["(on b1 goal_region)"]))
     ik, home = TopIK(lib), lib.home_q("right_arm")
-    far = np.array([2.0, -0.2, 1.0])  # beyond the arm
+    far = np.array([2.0, -0.2, 1.0])  # past the reach bound: no start tried
     assert not ik.solve("right_arm", far, home)[0]
+    assert ik.n_solves == 0 and ik.n_screened == 0 and ik.n_beyond == 1
+    inside = lib.start_pose("b1")[:3] - np.array([0.0, 0.0, 0.12])  # within the bound, in the table
+    assert not ik.solve("right_arm", inside, home)[0]
     assert ik.n_solves == 1 and ik.n_screened == 1 + guess_mod.RESTARTS
-    ok, q = ik.solve("right_arm", far, home + 0.1)
+    ok, q = ik.solve("right_arm", inside, home + 0.1)
     assert not ok and ik.n_solves == 2 and np.allclose(q, home + 0.1)
     near = lib.start_pose("b1")[:3] + np.array([0.0, 0.0, 0.02])
     assert ik.solve("left_arm", near, lib.home_q("left_arm"))[0]
@@ -654,8 +657,8 @@ def test_a_feasible_plan_is_solved_whole_at_the_tightest_relaxations(pr2):
 
 def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2):
     """``IK_MAX_ITER`` cuts the hopeless starts short: a reachable top grasp converges in under half the
-    limit (the margin it was set with), a point out of reach is reported so after at most the limit
-    per start."""
+    limit (the margin it was set with), a point it cannot reach (within the reach bound) is reported so
+    after at most the limit per start."""
     from rlgp_exec.planning.gnpp.guess import IK_MAX_ITER, RESTARTS
 
     scene = _tower(["b1", "b2", "b3"], ["(on b1 goal_region)"])
@@ -668,9 +671,8 @@ def test_top_ik_converges_well_within_its_iteration_limit_and_gives_up_at_it(pr2
         iters.append(int(ik._solvers[arm][0].stats()["iter_count"]))
     assert max(iters) < IK_MAX_ITER / 2, iters
     n0, s0 = ik.n_solves, ik.n_screened
-    # b4's place at the back left, out of the right arm's reach (see b4_setup): its starts ran to IPOPT's
-    # default limit (100 iterations) or near it
-    ok, _ = ik.solve("right_arm", np.array([-0.35, 0.15, 0.745]), lib.home_q("right_arm"))
+    # a point within the reach bound but in the table (b1's top 12 cm down): no posture clears the table
+    ok, _ = ik.solve("right_arm", lib.start_pose("b1")[:3] - np.array([0.0, 0.0, 0.12]), lib.home_q("right_arm"))
     assert not ok and ik.n_solves - n0 == 1 and ik.n_screened - s0 == 1 + RESTARTS  # every start: LM after the first
     assert ik._solvers["right_arm"][0].stats()["iter_count"] <= IK_MAX_ITER
 

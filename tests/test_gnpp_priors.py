@@ -7,7 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from rlgp_exec.planning.capabilities import arm_reach, start_reach_gaps
+from rlgp_exec.planning.capabilities import arm_reach, reach_segments, start_reach_gaps
+from rlgp_exec.planning.gnpp.geometry import FactorLib
+from rlgp_exec.planning.gnpp.guess import TopIK
 from rlgp_exec.planning.gnpp.pntc import add_flags, add_moves, at_start
 from rlgp_exec.planning.gnpp.priors import reach_priors
 from rlgp_exec.planning.symbolic import GroundAction, ground_scene
@@ -74,3 +76,49 @@ def test_priors_forbid_holding_and_placing_before_the_base_moves():
         drive = [GroundAction("start-move", ("right_arm",)), GroundAction("end-move", ("right_arm",))]
         moved = task.simulate([*drive, pick])
         assert not any(f.occurs_in(moved) for f in forbidden), arm
+
+
+def test_the_bound_holds_from_any_base_and_lift():
+    """``reach_segments`` at a random configuration: no posture of the arm's joints (the HSR's lift
+    included) from that base (and torso) puts the tool past it."""
+    rng = np.random.default_rng(1)
+    for robot in ("hsr", "pr2"):
+        model = load_robot(robot)
+        base = list(model.group("base"))
+        for _ in range(10):
+            q = model.home()
+            q[base] = [rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)]
+            for man in model.config.manipulators:
+                idx = list(model.group(man.group))
+                lo = np.nan_to_num(model.limits.lower[idx], neginf=-np.pi)
+                hi = np.nan_to_num(model.limits.upper[idx], posinf=np.pi)
+                q_start = q.copy()
+                q_start[idx] = rng.uniform(lo, hi)
+                (seg,) = (s for s in reach_segments(model, q_start) if s.manipulator == man.name)
+                for _ in range(20):
+                    q_arm = q_start.copy()
+                    q_arm[idx] = rng.uniform(lo, hi)
+                    assert seg.gap_m(model.fk(q_arm, man.tool_frame)[:3, 3]) <= 1e-9, (robot, man.name)
+
+
+def test_a_fixed_base_ik_past_the_bound_tries_no_start():
+    """GNPP's keyframe IK with the HSR's base held: a tray 2 m away is answered "unreachable" by the bound
+    alone (no IPOPT solve); a block within reach of the held base is still solved."""
+    scene = sorting_scene("hsr", 2, 0)
+    lib = FactorLib(load_robot("hsr"), scene)
+    assert lib.mobile
+    ik = TopIK(lib)
+    arm, q0 = lib.arms[0], lib.home_q(lib.arms[0])
+    T, _, z = lib.surface("tray_blue")
+    far = np.array([T[0, 3], T[1, 3], z + 0.03])
+    ok, q = ik.solve(arm, far, q0, fixed_base=True)
+    assert not ok and np.array_equal(q, q0) and ik.n_solves == 0 and ik.n_beyond == 1
+    block = next(o for o in scene.objects if o.name.startswith("block"))
+    top = np.asarray(block.pose[:3]) + np.array([0.0, 0.0, block.size[2] / 2 - 0.025])
+    ok, q_near = ik.solve(arm, top, q0)  # the base free: it goes to the block
+    assert ok
+    n = ik.n_solves
+    ok, q = ik.solve(arm, top, q_near, fixed_base=True)
+    assert ok and ik.n_solves > n and ik.n_beyond == 1
+    assert np.linalg.norm(lib.tool_T(arm, q)[:3, 3] - top) < 1e-3
+    assert np.allclose(q[:3], q_near[:3])

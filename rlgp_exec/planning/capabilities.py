@@ -22,6 +22,7 @@ from rlgp_exec.errors import RlgpError, SceneError
 from rlgp_exec.planning.actions import ACTION_KINDS as _ALL_KINDS
 from rlgp_exec.planning.actions import DRAWER_ACTIONS, GEOMETRIC_ACTIONS, GNPP_ACTIONS, MOVES, Kind
 from rlgp_exec.robot import load_robot
+from rlgp_exec.robot.model import FloatArray, RobotModel
 from rlgp_exec.scene import Scene
 
 __all__ = [
@@ -31,11 +32,13 @@ __all__ = [
     "ArmReach",
     "Capability",
     "ReachGap",
+    "ReachSegment",
     "TaskRefusedError",
     "arm_reach",
     "beyond_reach",
     "capability",
     "needed_actions",
+    "reach_segments",
     "refuse",
     "start_reach_gaps",
 ]
@@ -173,6 +176,45 @@ def arm_reach(robot: str) -> tuple[ArmReach, ...]:
     return tuple(out)
 
 
+class ReachSegment(NamedTuple):
+    """Where one arm's tool point can be at a configuration: within ``reach_m`` [m] of the segment
+    ``start``-``end`` (3,) [m, world] that its first joint's origin covers (``arm_reach``)."""
+
+    manipulator: str
+    start: FloatArray
+    end: FloatArray
+    reach_m: float
+
+    @property
+    def middle(self) -> FloatArray:
+        return 0.5 * (self.start + self.end)
+
+    def gap_m(self, point: FloatArray) -> float:
+        """[m] how far ``point`` (3,) lies past the bound (<= 0: maybe reachable)."""
+        d = self.end - self.start
+        u = 0.0 if not d.any() else float(np.clip((point - self.start) @ d / (d @ d), 0.0, 1.0))
+        return float(np.linalg.norm(point - (self.start + u * d))) - self.reach_m
+
+
+def reach_segments(model: RobotModel, q: FloatArray) -> tuple[ReachSegment, ...]:
+    """Per arm (``arm_reach``'s order), its ``ReachSegment`` at the full configuration q: the first
+    joint's origin there, slid over a prismatic first joint's whole travel (from q's value of it)."""
+    out = []
+    for a in arm_reach(model.config.name):
+        i = model.index(a.first_joint)
+        origin = model.fk(q, a.first_joint)[:3, 3]
+        axis = np.zeros(3)
+        if a.slide_m != (0.0, 0.0):  # a prismatic joint translates its child frame along its axis
+            dq = np.zeros(model.nq)
+            dq[i] = 1e-3
+            axis = (model.fk(np.asarray(q) + dq, a.first_joint)[:3, 3] - origin) / 1e-3
+        lo, hi = float(model.limits.lower[i] - q[i]), float(model.limits.upper[i] - q[i])
+        if a.slide_m == (0.0, 0.0):
+            lo = hi = 0.0
+        out.append(ReachSegment(a.manipulator, origin + lo * axis, origin + hi * axis, a.reach_m))
+    return tuple(out)
+
+
 class ReachGap(NamedTuple):
     """An object to be moved (``target`` None), or the goal target it is to be put on, that no arm reaches
     from the start base: the least distance [m] past every arm's ``arm_reach`` bound."""
@@ -202,24 +244,10 @@ def start_reach_gaps(scene: Scene) -> list[ReachGap]:
         return []
     moved = moved_objects(scene)
     model = load_robot(scene.robot.name)
-    q0 = model.home(scene.robot.base, scene.robot.joints)
-    arms = []
-    for a in arm_reach(scene.robot.name):
-        T = model.fk(q0, a.first_joint)
-        axis = np.zeros(3)
-        if a.slide_m != (0.0, 0.0):  # a prismatic joint translates its child frame along its axis
-            dq = np.zeros(model.nq)
-            dq[model.index(a.first_joint)] = 1e-3
-            axis = (model.fk(q0 + dq, a.first_joint)[:3, 3] - T[:3, 3]) / 1e-3
-        arms.append((T[:3, 3] + a.slide_m[0] * axis, T[:3, 3] + a.slide_m[1] * axis, a.reach_m))
+    arms = reach_segments(model, model.home(scene.robot.base, scene.robot.joints))
 
     def gap(point_of) -> float | None:  # the least distance past the reach, None when some arm reaches
-        gaps = []
-        for s0, s1, r in arms:
-            p = point_of(0.5 * (s0 + s1))
-            d = s1 - s0
-            u = 0.0 if not d.any() else float(np.clip((p - s0) @ d / (d @ d), 0.0, 1.0))
-            gaps.append(float(np.linalg.norm(p - (s0 + u * d))) - r)
+        gaps = [a.gap_m(point_of(a.middle)) for a in arms]
         return None if min(gaps) <= 0.0 else min(gaps)
 
     def top(name: str, height: float = 0.0):

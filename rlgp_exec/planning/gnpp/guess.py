@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from rlgp_exec.ipopt import LEAN
+from rlgp_exec.planning.capabilities import reach_segments
 from rlgp_exec.planning.gnpp import drawer_guess, drawer_pntc
 from rlgp_exec.planning.gnpp.geometry import MAX_TILT, FactorLib
 from rlgp_exec.planning.gnpp.lm import TOL as LM_TOL
@@ -57,6 +58,7 @@ class TopIK:
         self._unreachable: set[tuple] = set()
         self.n_solves = 0
         self.n_screened = 0  # later starts first tried by LM (``IK_SCREEN``)
+        self.n_beyond = 0  # calls answered by the reach bound alone (``_beyond``)
         self.carry: dict[str, FloatArray | None] = {}  # per arm: ``motion.carry_q``'s posture, solved once
 
     def _solver(self, arm: str, col_key: tuple[str, ...] | None = None):
@@ -93,6 +95,10 @@ class TopIK:
         fixed_base = fixed_base and self.lib.mobile
         key = (arm, *np.round(pos, 3), *np.round(q_ref, 2), *((True,) if fixed_base else ()), *(col_key or ()))
         if key in self._memo:
+            return self._memo[key]
+        if (fixed_base or not self.lib.mobile) and self._beyond(arm, pos, q_ref):
+            self.n_beyond += 1
+            self._memo[key] = (False, np.asarray(q_ref, float))
             return self._memo[key]
         s, lbg, ubg, screen = self._solver(arm, col_key)
         lo, hi = self.lib.var_bounds("q", arm)
@@ -131,6 +137,14 @@ class TopIK:
             self._unreachable.add(point)
         self._memo[key] = out
         return out
+
+
+    def _beyond(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> bool:
+        """The point ``pos`` (3,) lies past ``arm_reach``'s bound from q_ref's base (and torso): no posture
+        gets the tool there, so no start is tried (a fixed base's IK towards a far tray ran every start to
+        its iteration limit)."""
+        segs = reach_segments(self.lib.model, self.lib.full_q({arm: np.asarray(q_ref, float)}))
+        return next(g for g in segs if g.manipulator == arm).gap_m(np.asarray(pos, float)) > 0.0
 
 
 def _ring_starts(home: FloatArray, pos: FloatArray, q_ref: FloatArray) -> list[FloatArray]:
@@ -365,7 +379,9 @@ def ik_seed(
     ``bearing`` k > 0 (a mobile arm): the IK starts with the base at the k-th of ``_ring_starts``' bearings
     round the object (nearest the guess's base first), not at the guess's: from the guess's base the IK
     stops at the first posture that reaches (often at the tilt bound, the fingers off the faces), where
-    the subgraph's solve fails again; the other bearings give other bases and postures. On robots whose
+    the subgraph's solve fails again; the other bearings give other bases and postures. The held pose goes
+    to every variable an ``Equal`` chain ties to the switch's (the solver starts the chain from its earliest
+    one: a place's seeded grasp was otherwise lost to the stale one where the pick left it). On robots whose
     arms share a driven base (``FactorLib.riders``) the new base goes to every arm variable the subgraph
     ties to it (``EqualBase``, ``SameBase``: a start with the other arm, or the posture before the pick, at
     the old base fails), and a later switch on a base so set first tries to reach from it (not on the
@@ -394,18 +410,21 @@ def ik_seed(
             ok, q = ik.solve(arm, top, q_ref, col_key=cols.get(q_var))
         if ok:
             out[q_var] = q
-            out[r_var] = _held_of(lib, arm, q, w)
+            held = _held_of(lib, arm, q, w)
+            for v in _tied(factors, r_var, ("Equal",)):  # the solver starts an Equal chain at its earliest value
+                out[v] = held.copy()
             if lib.riders:  # the arms that share this base in the subgraph (EqualBase, SameBase) go with it
-                tied = _base_tied(factors, q_var)
+                tied = _tied(factors, q_var, ("EqualBase", "SameBase"))
                 for v in tied - {q_var}:
                     out[v] = np.r_[q[:3], np.asarray(out[v], float)[3:]]
                 based |= tied
     return out
 
 
-def _base_tied(factors: Sequence[Factor], start: Var) -> set[Var]:
-    """The arm variables the subgraph's ``EqualBase`` and ``SameBase`` factors tie to ``start``'s base."""
-    edges = [f.vars for f in factors if f.kind in ("EqualBase", "SameBase")]
+def _tied(factors: Sequence[Factor], start: Var, kinds: tuple[str, ...]) -> set[Var]:
+    """The variables the subgraph's factors of ``kinds`` tie to ``start`` (``start`` included): ``Equal``
+    for an object's pose carried on, ``EqualBase`` and ``SameBase`` for the arm variables on one base."""
+    edges = [f.vars for f in factors if f.kind in kinds]
     tied, grew = {start}, True
     while grew:
         grew = False

@@ -314,7 +314,8 @@ def _plan(
             if conflict is not None:
                 found.append(conflict)
                 forbidden.append(to_forbidden(generalise(conflict.factors)))
-                log.info("%s iteration %d: %s", variant, it, forbidden[-1])
+                log.info("%s iteration %d: learnt %s, from the infeasible subgraph %s", variant, it, forbidden[-1],
+                         conflict)
                 continue
             if values is None:  # every conflict found was refuted: no proof either way, block this plan
                 forbidden.append(_whole(states))
