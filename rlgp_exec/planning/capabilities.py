@@ -196,22 +196,24 @@ class ReachSegment(NamedTuple):
         return float(np.linalg.norm(point - (self.start + u * d))) - self.reach_m
 
 
-def reach_segments(model: RobotModel, q: FloatArray) -> tuple[ReachSegment, ...]:
-    """Per arm (``arm_reach``'s order), its ``ReachSegment`` at the full configuration q: the first
-    joint's origin there, slid over a prismatic first joint's whole travel (from q's value of it)."""
+def reach_segments(model: RobotModel, q: FloatArray, manipulator: str | None = None) -> tuple[ReachSegment, ...]:
+    """Per arm (``arm_reach``'s order; only ``manipulator``'s if given), its ``ReachSegment`` at the full
+    configuration q: the first joint's origin there, slid over a prismatic first joint's whole travel
+    (from q's value of it)."""
     out = []
     for a in arm_reach(model.config.name):
-        i = model.index(a.first_joint)
+        if manipulator is not None and a.manipulator != manipulator:
+            continue
         origin = model.fk(q, a.first_joint)[:3, 3]
-        axis = np.zeros(3)
+        start = end = origin
         if a.slide_m != (0.0, 0.0):  # a prismatic joint translates its child frame along its axis
+            i = model.index(a.first_joint)
             dq = np.zeros(model.nq)
             dq[i] = 1e-3
             axis = (model.fk(np.asarray(q) + dq, a.first_joint)[:3, 3] - origin) / 1e-3
-        lo, hi = float(model.limits.lower[i] - q[i]), float(model.limits.upper[i] - q[i])
-        if a.slide_m == (0.0, 0.0):
-            lo = hi = 0.0
-        out.append(ReachSegment(a.manipulator, origin + lo * axis, origin + hi * axis, a.reach_m))
+            start = origin + float(model.limits.lower[i] - q[i]) * axis
+            end = origin + float(model.limits.upper[i] - q[i]) * axis
+        out.append(ReachSegment(a.manipulator, start, end, a.reach_m))
     return tuple(out)
 
 

@@ -138,13 +138,12 @@ class TopIK:
         self._memo[key] = out
         return out
 
-
     def _beyond(self, arm: str, pos: FloatArray, q_ref: FloatArray) -> bool:
         """The point ``pos`` (3,) lies past ``arm_reach``'s bound from q_ref's base (and torso): no posture
         gets the tool there, so no start is tried (a fixed base's IK towards a far tray ran every start to
         its iteration limit)."""
-        segs = reach_segments(self.lib.model, self.lib.full_q({arm: np.asarray(q_ref, float)}))
-        return next(g for g in segs if g.manipulator == arm).gap_m(np.asarray(pos, float)) > 0.0
+        (seg,) = reach_segments(self.lib.model, self.lib.full_q({arm: np.asarray(q_ref, float)}), arm)
+        return seg.gap_m(np.asarray(pos, float)) > 0.0
 
 
 def _ring_starts(home: FloatArray, pos: FloatArray, q_ref: FloatArray) -> list[FloatArray]:
