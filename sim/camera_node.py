@@ -115,6 +115,7 @@ class CameraNode:
                 if time.monotonic() > end:
                     raise RlgpError(f"camera node: cannot reach the robot at {self.endpoint}: {e}") from e
                 time.sleep(0.2)
+        rc.prepare()
         s, k = self._session, self.keys
         handlers = {
             k["joint_states"].key: self.history.on_joint_states,

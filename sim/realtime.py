@@ -1,6 +1,8 @@
 """The simulated robot's fixed-rate loop: a thread that calls its tick at absolute deadlines and keeps the
-period errors it saw (the robot servers' 100 Hz, Zenoh and CAN alike). Like a robot's controller it runs
-under ``SCHED_FIFO`` where the OS allows (:mod:`rlgp_exec.hal.realtime`)."""
+period errors it saw (the robot servers' 100 Hz, Zenoh and CAN alike). Asked to (a robot PC of its own), it
+runs under ``SCHED_FIFO`` where the OS allows (:mod:`rlgp_exec.hal.realtime`). Not by default: beside the
+executive it stands in for a robot to, its thread under ``SCHED_FIFO`` starves the server's own message
+threads, and the setpoints it is sent queue up behind it."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ log = logging.getLogger(__name__)
 class RealTimeLoop:
     """Call ``tick()`` every ``period`` s on absolute deadlines (no drift); records the period errors."""
 
-    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop", realtime: bool = True) -> None:
+    def __init__(self, period: float, tick: Callable[[], None], name: str = "loop", realtime: bool = False) -> None:
         self.period = period
         self.realtime = realtime  # the loop's thread under SCHED_FIFO when the OS allows it
         self.grant = RealtimeGrant(False, "SCHED_OTHER", "not started")

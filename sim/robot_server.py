@@ -86,6 +86,7 @@ class ZenohRobotServer:
         namespace: str = "",
         rate_hz: float = 100.0,
         config_file: str | None = None,
+        realtime: bool = False,
     ) -> None:
         self.sim = sim
         self.keys = load_key_map(sim.model.name, namespace)
@@ -96,12 +97,13 @@ class ZenohRobotServer:
         self.rejects = RejectCounter("robot_server[zenoh]")
         self.accepted: Counter[str] = Counter()
         self.lock = threading.Lock()
-        self.loop = RealTimeLoop(self.period, self.tick, "zenoh-robot")
+        self.loop = RealTimeLoop(self.period, self.tick, "zenoh-robot", realtime)
         self._session: Any = None
         self._pubs: dict[str, Any] = {}
         self._decls: list[Any] = []
         self._token: Any = None
         self._executive_seen = False
+        self._stopping = False
         self._ticks = 0
         self._faults_sent: tuple[str, ...] = ()
         self._commanded = False  # a motion command was accepted: the deadline runs
@@ -110,6 +112,8 @@ class ZenohRobotServer:
 
     # ------------------------------------------------------------------ set-up
     def start(self) -> None:
+        self._stopping = False
+        rc.prepare()
         config = session_config(listen=self.endpoint, config_file=self.config_file)
         s = open_session(config, f"robot server: cannot listen on {self.endpoint or self.config_file}")
         self._session = s
@@ -151,6 +155,7 @@ class ZenohRobotServer:
         self._token = s.liveliness().declare_token(k.alive_robot)
 
     def stop(self) -> None:
+        self._stopping = True  # samples still in flight are dropped: the physics closes next
         self.loop.stop()
         if self._session is not None:
             try:
@@ -184,6 +189,8 @@ class ZenohRobotServer:
     # ------------------------------------------------------------------ commands
     def _guard(self, topic: str, key: str, fn: Callable[[bytes, str], None]) -> Callable[[Any], None]:
         def cb(sample: Any) -> None:
+            if self._stopping:
+                return
             if not exact(sample, key):
                 self.rejects.reject("wildcard", f"{topic}: sample on {sample.key_expr}, not {key}")
                 return
@@ -343,6 +350,8 @@ class ZenohRobotServer:
         log.warning("robot_server: pushed %s by (%.3f, %.3f) m", name, dx, dy)
 
     def _on_executive(self, sample: Any) -> None:
+        if self._stopping:
+            return
         if not exact(sample, self.keys.alive_executive):
             self.rejects.reject("wildcard", f"liveliness on {sample.key_expr}, not {self.keys.alive_executive}")
             return
@@ -392,6 +401,12 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--can-interface", default="socketcan", help="can: python-can interface (socketcan, udp_multicast)")
     ap.add_argument("--can-channel", default="vcan0", help="can: python-can channel")
     ap.add_argument("--rate", type=float, default=100.0, help="state publishing / physics rate [Hz]")
+    ap.add_argument(
+        "--realtime",
+        action="store_true",
+        help="physics loop under SCHED_FIFO (a robot PC of its own; beside the executive it starves this "
+        "server's message threads)",
+    )
     ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until killed)")
     ap.add_argument("-v", "--verbose", action="count", default=0)
     return ap
@@ -415,12 +430,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         sim = build_sim(args.robot, args.scene)
         server: Any
         if args.transport == "zenoh":
-            server = ZenohRobotServer(sim, endpoint, args.namespace, args.rate, args.zenoh_config)
+            server = ZenohRobotServer(sim, endpoint, args.namespace, args.rate, args.zenoh_config, args.realtime)
         else:
             # local: sim.robot_server_can brings python-can
             from rlgp_exec.sim.robot_server_can import CanRobotServer, open_bus
 
-            server = CanRobotServer(sim, open_bus(args.can_interface, args.can_channel), rate_hz=args.rate)
+            bus = open_bus(args.can_interface, args.can_channel)
+            server = CanRobotServer(sim, bus, rate_hz=args.rate, realtime=args.realtime)
         server.start()
     except RlgpError as e:
         if sim is not None:

@@ -77,7 +77,14 @@ class _Drive:
 class CanRobotServer:
     """The robot side of the can backend, driving a :class:`SimRobot`."""
 
-    def __init__(self, sim: SimRobot, bus: can.BusABC, rate_hz: float = 100.0, can_map: CanMap | None = None) -> None:
+    def __init__(
+        self,
+        sim: SimRobot,
+        bus: can.BusABC,
+        rate_hz: float = 100.0,
+        can_map: CanMap | None = None,
+        realtime: bool = False,
+    ) -> None:
         self.sim = sim
         self.bus = bus
         self.map = can_map or load_can_map(sim.model)
@@ -88,7 +95,7 @@ class CanRobotServer:
         self.ignored = 0  # frames for other nodes (not errors)
         self.lock = threading.RLock()
         self.period = 1.0 / rate_hz
-        self.loop = RealTimeLoop(self.period, self.tick, "can-robot")
+        self.loop = RealTimeLoop(self.period, self.tick, "can-robot", realtime)
         self._notifier: can.Notifier | None = None
         self._master_hb = time.monotonic()
         self.paused = False  # tests: a powered-off robot (no frames out, none processed)

@@ -70,3 +70,24 @@ def test_the_environment_turns_it_off(monkeypatch):
     assert not grant.granted and grant.reason == "RLGP_EXEC_REALTIME=0"
     if hasattr(os, "sched_getscheduler"):
         assert os.sched_getscheduler(0) == os.SCHED_OTHER
+
+
+@linux
+def test_the_simulated_robots_loop_keeps_normal_priority_unless_asked():
+    """Beside the executive, a SCHED_FIFO robot loop starves the server's own message threads: setpoints
+    queued 0.2-0.4 s behind it and the executive stopped on tracking errors."""
+    from rlgp_exec.sim.realtime import RealTimeLoop  # local: the sim package is not the HAL's
+
+    seen: list[int] = []
+
+    def tick() -> None:
+        seen.append(os.sched_getscheduler(0))
+
+    for realtime, ok in ((False, {os.SCHED_OTHER}), (True, {os.SCHED_OTHER, os.SCHED_FIFO})):
+        seen.clear()
+        loop = RealTimeLoop(0.005, tick, "test", realtime=realtime)
+        loop.start()
+        time.sleep(0.05)
+        loop.stop()
+        assert seen and set(seen) <= ok
+    assert RealTimeLoop(0.01, tick).realtime is False

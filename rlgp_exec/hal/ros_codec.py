@@ -37,6 +37,7 @@ __all__ = [
     "parse_trajectory",
     "parse_transforms",
     "parse_twist",
+    "prepare",
 ]
 
 MAX_PAYLOAD = 64 * 1024  # [bytes] anything larger is not one of our messages
@@ -52,9 +53,50 @@ class Rejected:
         return False
 
 
+# every type sent or received: rosbags generates each one's (de)serialisers on first use, tens of ms of
+# GIL-held work that, done in the subscriber threads at the first setpoints, delayed them by 0.2-0.4 s
+WIRE_TYPES = (
+    "builtin_interfaces/msg/Time",
+    "geometry_msgs/msg/TransformStamped",
+    "geometry_msgs/msg/Twist",
+    "nav_msgs/msg/Odometry",
+    "sensor_msgs/msg/CameraInfo",
+    "sensor_msgs/msg/CompressedImage",
+    "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/JointState",
+    "std_msgs/msg/Bool",
+    "std_msgs/msg/Float64",
+    "std_msgs/msg/String",
+    "tf2_msgs/msg/TFMessage",
+    "trajectory_msgs/msg/JointTrajectory",
+)
+
+
+def _nested(store: Any, desc: Any) -> set[str]:
+    """The message type names inside a field description (nested, arrays and sequences of them)."""
+    if isinstance(desc, str):
+        return {desc} if desc in store.fielddefs else set()
+    if isinstance(desc, tuple | list):
+        return set().union(*(_nested(store, d) for d in desc))
+    return set()
+
+
 @lru_cache(maxsize=1)
 def _store() -> Any:
-    return get_typestore(Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    todo, done = list(WIRE_TYPES), set()
+    while todo:
+        name = todo.pop()
+        if name not in done:
+            done.add(name)
+            store.get_msgdef(name)
+            todo.extend(_nested(store, store.fielddefs[name][1]))
+    return store
+
+
+def prepare() -> None:
+    """Generate the message codecs now (set-up, before any subscriber runs), not on the first message."""
+    _store()
 
 
 def _t(name: str) -> Any:

@@ -109,6 +109,7 @@ class ZenohBackend(RobotInterface):
 
     # ------------------------------------------------------------------ lifecycle hooks
     def _on_configure(self) -> None:
+        rc.prepare()
         config = session_config(connect=self.endpoint, config_file=self.config_file)
         s = open_session(config, f"zenoh: cannot connect to {self.endpoint or self.config_file}")
         self._session = s
